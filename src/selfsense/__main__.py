@@ -1,0 +1,5 @@
+import sys
+
+from selfsense.cli import main
+
+sys.exit(main())
