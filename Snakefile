@@ -1,0 +1,27 @@
+# selfsense: raw DAQ logs -> charge -> H(q) -> A-coefficients -> estimates -> Table 3, figures, report, gap.
+# Run: snakemake --cores 2            (all datasets in config.yaml)
+#      snakemake --cores 2 --configfile other.yaml
+# All science lives in src/selfsense; scripts in workflow/scripts are thin.
+from snakemake.utils import min_version, validate
+
+min_version("8.10")
+
+
+configfile: "config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/pipeline.smk"
+if os.path.exists(os.path.join(workflow.basedir, "workflow/rules/gap.smk")):
+
+    include: "workflow/rules/gap.smk"
+
+
+
+rule all:
+    input:
+        expand(RESULTS + "/{dataset}/report.html", dataset=DATASETS),
+    default_target: True

@@ -1,0 +1,98 @@
+"""A self-contained, deterministic HTML report of one dataset's results (figures embedded as base64 PNG)."""
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+
+import pandas as pd
+
+
+def _md_table_to_html(md: str) -> str:
+    """Render the simple pipe tables this project writes (header, separator, rows) and '###' titles."""
+    out, rows = [], []
+
+    def flush():
+        if rows:
+            head, body = rows[0], rows[2:] if len(rows) > 1 else []
+            out.append("<table><thead><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in head) + "</tr></thead><tbody>")
+            for r in body:
+                out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
+            out.append("</tbody></table>")
+            rows.clear()
+
+    for line in md.splitlines():
+        s = line.strip()
+        if s.startswith("|"):
+            rows.append([c.strip() for c in s.strip("|").split("|")])
+            continue
+        flush()
+        if s.startswith("###"):
+            out.append(f"<h3>{html.escape(s.lstrip('#').strip())}</h3>")
+        elif s:
+            out.append(f"<p>{html.escape(s)}</p>")
+    flush()
+    return "\n".join(out)
+
+
+def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str:
+    name = dataset_dir.name
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>selfsense report: {html.escape(name)}</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}"
+        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;font-size:90%}"
+        "figure{margin:1em 0}figcaption{font-size:90%;color:#333}img{max-width:100%}</style></head><body>",
+        f"<h1>Self-sensing report: dataset <code>{html.escape(name)}</code></h1>",
+        "<p>Method: thesis <i>A force and displacement self-sensing method for a MRI compatible tweezer end effector</i> "
+        "(000_18d138f03f1777c3.txt), eqs. (52)-(57), with the on-site calibration of 001_972cacfaa08ad91a.txt. "
+        "Errors are mean absolute errors and, per trial, in % of that trial's reference range; Table 3 averages the "
+        "validation trials.</p>",
+    ]
+    if failed:
+        parts.append("<h2>Failed trials</h2><ul>" + "".join(f"<li>{html.escape(f)}</li>" for f in failed) + "</ul>")
+    tables = results_dir / "tables"
+    parts.append("<h2>Accuracy (thesis Table 3 / paper Table II)</h2>")
+    for md in ("table3.md", "modes.md", "per_trial.md"):
+        p = tables / md
+        if p.exists():
+            parts.append(_md_table_to_html(p.read_text()))
+    model = results_dir / "model" / "sensing.json"
+    if model.exists():
+        d = json.loads(model.read_text())
+        rep = d.get("fit_report", {}).get("hysteresis", {})
+        coef = {k: v for k, v in d.get("coef", {}).items() if not isinstance(v, dict)}
+        parts.append("<h2>Calibrated model</h2>")
+        parts.append(
+            f"<p>H(q): {html.escape(str(rep.get('h_model')))} calibrated on trial <code>{html.escape(str(rep.get('trial')))}</code> "
+            f"({html.escape(d['config']['h_mode'])} mode), fit error RMS {rep.get('rms_pct', float('nan')):.3f} % / "
+            f"max {rep.get('max_pct', float('nan')):.3f} % of output range, solver {html.escape(str(rep.get('solver')))}.</p>")
+        parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in coef) + "</tr><tr>"
+                     + "".join(f"<td>{v:.6g}</td>" for v in coef.values()) + "</tr></table>")
+    figs = results_dir / "figures"
+    caps_path = figs / "captions.json"
+    if caps_path.exists():
+        caps = json.loads(caps_path.read_text())
+        parts.append("<h2>Figures</h2>")
+        for stem in sorted(caps):
+            png = figs / f"{stem}.png"
+            if not png.exists():
+                continue
+            b64 = base64.b64encode(png.read_bytes()).decode("ascii")
+            parts.append(f"<figure><img alt='{html.escape(stem)}' src='data:image/png;base64,{b64}'>"
+                         f"<figcaption><b>{html.escape(stem)}</b>: {html.escape(caps[stem])}</figcaption></figure>")
+    gap = results_dir / "gap"
+    if gap.exists():
+        parts.append("<h2>Sim-to-real gap diagnostic</h2>")
+        v = gap / "verdict.json"
+        if v.exists():
+            parts.append(f"<pre>{html.escape(v.read_text())}</pre>")
+        for md in sorted(gap.glob("*.md")):
+            parts.append(_md_table_to_html(md.read_text()))
+        for png in sorted(gap.glob("*.png")):
+            b64 = base64.b64encode(png.read_bytes()).decode("ascii")
+            parts.append(f"<figure><img alt='{html.escape(png.stem)}' src='data:image/png;base64,{b64}'>"
+                         f"<figcaption>{html.escape(png.stem)}</figcaption></figure>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)

@@ -1,0 +1,453 @@
+"""The self-sensing estimator: H(q) calibration, sensing-coefficient regression, estimation.
+
+The method of ``000_18d138f03f1777c3.txt`` (thesis) sec. 4.3 with the on-site calibration of
+``001_972cacfaa08ad91a.txt`` (paper) eqs. (16)-(23):
+
+* Goldfarb-Celanovic actuator, thesis eqs. (24)-(27): ``V_p = V - H(q)``.
+* Tip response, thesis eq. (52) (approximation of eq. (46))::
+
+      dx_tip = A1 * (n_A q) + A2 * V_p
+      f_tip  = (A3 / n_A) * (n_A q) - C_p * A3 * V_p
+
+  Here ``n_A q`` is the total charge ``Q`` seen by the shunt (thesis: "the charge will be n_A times that of a single
+  actuator") and ``C_p`` is the clamped capacitance of ONE actuator, so ``f_tip = (A3 / n_A) (Q - n_A C_p V_p)``.
+* Free-tip calibration of H, thesis eq. (55): ``H(q) = V - Q / (n_A C_p)`` (the convention that folds the piezo
+  displacement term into H; CALIBRATION_NOTES item 4), or the paper's on-site calibration eq. (23):
+  ``H(q) = V - (1 - alpha B A_q) q / C_p`` with per-actuator charge ``q = Q / n_A``, ``alpha`` from the catalog
+  (blocked force / max voltage), ``B = dx_pzt_free / dx_tip_free`` (paper eq. 20) and ``A_q`` the free-tip
+  displacement per unit per-actuator charge [m/C].
+* Regression of A1, A2 (and A3) on *calibration trials only*, jointly over loading conditions
+  (CALIBRATION_NOTES item 1): dx on displacement-reference trials plus dx = 0 on blocked-tip trials; f on
+  force-reference trials plus f = 0 on free-tip trials. ``regression="full"`` fits the four free terms of the
+  unapproximated eq. (46) instead (A1, A2, B21, B22).
+* Post-processing of thesis sec. 5.2 / Fig. 24: limiting to the physical range, and a sliding DC offset on the
+  displacement that resets whenever the input voltage is zero.
+
+Units: SI throughout (C, V, m, N, s).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping, Protocol
+
+import numpy as np
+import pandas as pd
+
+from selfsense.signals import limit_to_range, sliding_dc_offset
+
+__all__ = [
+    "SensingConfig",
+    "SelfSensingEstimator",
+    "CalibrationError",
+    "Augmentation",
+    "h_target",
+]
+
+H_MODES = ("thesis", "onsite")
+H_MODELS = ("modified_pi", "ri")
+REGRESSIONS = ("approx", "full")
+
+
+class CalibrationError(ValueError):
+    """The calibration trials cannot determine the model (missing trial roles, degenerate data...)."""
+
+
+class Augmentation(Protocol):  # pragma: no cover - typing only
+    """Structural augmentation of the estimator used by the gap diagnostic (all methods optional)."""
+
+    name: str
+
+    def fit(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame, estimator: "SelfSensingEstimator") -> None: ...
+
+    def transform(self, df: pd.DataFrame) -> pd.DataFrame: ...
+
+    def features(self, df: pd.DataFrame) -> pd.DataFrame: ...
+
+
+@dataclass
+class SensingConfig:
+    """Configuration of the estimator (the ``calibration`` / ``estimation`` keys of ``config.yaml``)."""
+
+    h_mode: str = "thesis"
+    h_model: str = "modified_pi"
+    n_play: int = 15
+    n_sup: int = 15
+    n_creep: int = 4
+    creep: bool = True
+    solver: str = "CLARABEL"
+    regression: str = "approx"
+    limit: bool = True
+    dc_offset: bool = True
+    dc_offset_force: bool = False
+    zero_input_v: float = 0.5
+    fit_z0: bool = False
+    max_fit_samples: int = 20000
+
+    def __post_init__(self) -> None:
+        if self.h_mode not in H_MODES:
+            raise ValueError(f"SensingConfig.h_mode: expected one of {H_MODES}, found {self.h_mode!r}")
+        if self.h_model not in H_MODELS:
+            raise ValueError(f"SensingConfig.h_model: expected one of {H_MODELS}, found {self.h_model!r}")
+        if self.regression not in REGRESSIONS:
+            raise ValueError(f"SensingConfig.regression: expected one of {REGRESSIONS}, found {self.regression!r}")
+        for name in ("n_play", "n_sup"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"SensingConfig.{name}: expected a positive integer, found {getattr(self, name)!r}")
+        if int(self.n_creep) < 0:
+            raise ValueError(f"SensingConfig.n_creep: expected >= 0, found {self.n_creep!r}")
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any] | None) -> "SensingConfig":
+        cfg = dict(cfg or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(cfg) - known)
+        if unknown:
+            raise ValueError(f"sensing config: unknown keys {unknown}; expected some of {sorted(known)}")
+        return cls(**cfg)
+
+
+def _rig_get(rig: Any, *path: str) -> float:
+    obj = rig
+    for p in path:
+        obj = obj[p] if isinstance(obj, Mapping) else getattr(obj, p)
+    return float(obj)
+
+
+def _rig_params(rig: Any) -> dict[str, float]:
+    """The rig quantities the estimator needs, from a ``selfsense.io.Rig`` or a plain rig.yaml mapping."""
+    return {
+        "n_A": _rig_get(rig, "n_actuators"),
+        "C_p": _rig_get(rig, "actuator_catalog", "capacitance_f"),
+        "blocked_force": _rig_get(rig, "actuator_catalog", "blocked_force_n"),
+        "max_voltage": _rig_get(rig, "actuator_catalog", "max_voltage_v"),
+        "dx_pzt_free": _rig_get(rig, "actuator_catalog", "free_displacement_m"),
+        "dx_tip_free": _rig_get(rig, "tip_free_displacement_m"),
+    }
+
+
+def h_target(V: np.ndarray, Q: np.ndarray, slope: float) -> np.ndarray:
+    """Free-tip calibration target of H: ``V_H = V - slope * Q``.
+
+    ``slope = 1 / (n_A C_p)`` gives thesis eq. (55); ``slope = (1 - alpha B A_q) / (n_A C_p)`` gives paper eq. (23)
+    written for the total charge ``Q = n_A q``.
+    """
+    return np.asarray(V, dtype=float) - slope * np.asarray(Q, dtype=float)
+
+
+def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
+    """Fit the H(q) operator of ``cfg.h_model`` to the calibration target; returns (model, report dict)."""
+    t0 = time.perf_counter()
+    if cfg.h_model == "modified_pi":
+        from selfsense.hysteresis.identify import fit_modified_pi
+
+        model, rep = fit_modified_pi(
+            Q, y, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=cfg.n_creep, creep=cfg.creep,
+            solver=cfg.solver, fit_z0=cfg.fit_z0,
+        )
+        report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
+    else:
+        from selfsense.hysteresis.ri import RIModel
+
+        model = RIModel()
+        model.fit(np.maximum(Q, 0.0), y)
+        pred = model(np.maximum(Q, 0.0))
+        rng = float(np.ptp(y)) or 1.0
+        report = {
+            "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
+            "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
+            "solver": "lstsq",
+            "status": "optimal",
+        }
+    report["seconds"] = time.perf_counter() - t0
+    report["h_model"] = cfg.h_model
+    return model, report
+
+
+def _h_to_dict(model) -> dict:
+    return {"kind": type(model).__name__, "params": model.to_dict()}
+
+
+def _h_from_dict(d: Mapping[str, Any]):
+    kind = d["kind"]
+    if kind == "ModifiedPI":
+        from selfsense.hysteresis.pi import ModifiedPI
+
+        return ModifiedPI.from_dict(d["params"])
+    if kind == "RIModel":
+        from selfsense.hysteresis.ri import RIModel
+
+        return RIModel.from_dict(d["params"])
+    raise ValueError(f"hysteresis model: unknown kind {kind!r}; expected 'ModifiedPI' or 'RIModel'")
+
+
+def _eval_h(model, Q: np.ndarray) -> np.ndarray:
+    if type(model).__name__ == "RIModel":
+        return np.asarray(model(np.maximum(Q, 0.0)), dtype=float)
+    return np.asarray(model(Q), dtype=float)
+
+
+def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares on column-scaled regressors (charges ~1e-4 C and voltages ~1e2 V differ by 1e6)."""
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    scale[scale == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=None)
+    return coef / scale
+
+
+def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:
+    step = max(1, int(np.ceil(len(df) / max_samples)))
+    return df.iloc[::step] if step > 1 else df
+
+
+@dataclass
+class SelfSensingEstimator:
+    """Simultaneous tip displacement and force estimation from voltage and charge (thesis eq. 52).
+
+    Scikit-learn style: configuration in the constructor, :meth:`fit` on calibration trials only,
+    :meth:`estimate` on any prepared trial; fitted attributes end with an underscore.
+    """
+
+    config: SensingConfig = field(default_factory=SensingConfig)
+    rig: Any = None
+    augmentations: tuple = ()
+
+    # fitted
+    hysteresis_: Any = field(default=None, init=False, repr=False)
+    h_slope_: float = field(default=float("nan"), init=False)
+    onsite_: dict = field(default_factory=dict, init=False)
+    coef_: dict = field(default_factory=dict, init=False)
+    ranges_: dict = field(default_factory=dict, init=False)
+    fit_report_: dict = field(default_factory=dict, init=False)
+    calibration_trials_: list = field(default_factory=list, init=False)
+    _extra_names: list = field(default_factory=list, init=False, repr=False)
+
+    # ------------------------------------------------------------------ fitting
+    def _calibration_set(self, trials, meta):
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        cal = meta[meta["role"] == "calibration"]
+        missing = [t for t in cal.index if t not in trials]
+        if missing:
+            raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
+        return cal, {t: self._transform(trials[t]) for t in cal.index}
+
+    def fit_hysteresis(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
+        """Calibrate H(q) on the free-tip calibration trial (thesis eq. 55 or paper eq. 23).
+
+        ``trials`` maps trial id -> prepared DataFrame (``selfsense.signals.prepare_trial``); ``meta`` is trials.csv
+        indexed by trial id (or with a ``trial`` column). Only calibration trials are read; augmentations are
+        fitted here on the calibration trials.
+        """
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        cal = meta[meta["role"] == "calibration"]
+        if cal.empty:
+            raise CalibrationError("trials.csv: no trial with role 'calibration'; at least one is required")
+        free = cal[cal["tip"] == "free"]
+        if free.empty:
+            raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
+        missing = [t for t in cal.index if t not in trials]
+        if missing:
+            raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
+        self.calibration_trials_ = list(cal.index)
+        cal_trials = {t: trials[t] for t in cal.index}
+
+        for aug in self.augmentations:
+            if hasattr(aug, "fit"):
+                aug.fit(cal_trials, cal, self)
+        cal_trials = {t: self._transform(df) for t, df in cal_trials.items()}
+
+        p = _rig_params(self.rig)
+        n_A, C_p = p["n_A"], p["C_p"]
+        cfg = self.config
+
+        # --- H(q) on the free-tip calibration trial(s) (thesis eq. 55 / paper eq. 23)
+        free_id = free.index[0]
+        df_free = cal_trials[free_id]
+        act = df_free["relay"].to_numpy() < 0.5
+        slope = 1.0 / (n_A * C_p)
+        if cfg.h_mode == "onsite":
+            alpha = p["blocked_force"] / p["max_voltage"]  # catalog transformer ratio [N/V]
+            B = p["dx_pzt_free"] / p["dx_tip_free"]  # paper eq. (20)
+            dx = df_free["dx_ref"].to_numpy()
+            ok = act & np.isfinite(dx)
+            if ok.sum() < 10:
+                raise CalibrationError(
+                    f"trial {free_id!r}: the on-site calibration needs the free-tip displacement reference (dx_ref)"
+                )
+            q_act = df_free["q"].to_numpy()[ok] / n_A
+            A_q = float(np.dot(q_act, dx[ok]) / np.dot(q_act, q_act))  # free tip: dx = A_q q (paper, before eq. 23)
+            factor = 1.0 - alpha * B * A_q
+            slope = factor / (n_A * C_p)
+            self.onsite_ = {"alpha": alpha, "B": B, "A_q": A_q, "factor": factor}
+        self.h_slope_ = float(slope)
+        df_fit = _decimate(df_free[act], cfg.max_fit_samples)
+        t = df_fit["t"].to_numpy()
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+        Q = df_fit["q"].to_numpy()
+        y = h_target(df_fit["V"].to_numpy(), Q, slope)
+        self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
+        rep["trial"] = free_id
+        rep["n_samples_fit"] = int(len(Q))
+        self.fit_report_ = {"hysteresis": rep}
+        self._fit_ranges(cal_trials, cal)
+        return self
+
+    def fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
+        """Regress the sensing coefficients (thesis eq. 52, or eq. 46 with ``regression='full'``) on calibration
+        trials only, with H(q) already calibrated (:meth:`fit_hysteresis`)."""
+        if self.hysteresis_ is None:
+            raise RuntimeError("fit_coefficients: calibrate H(q) first (fit_hysteresis)")
+        cal, cal_trials = self._calibration_set(trials, meta)
+        p = _rig_params(self.rig)
+        n_A, C_p = p["n_A"], p["C_p"]
+        cfg = self.config
+        # --- sensing coefficients, jointly over loading conditions (CALIBRATION_NOTES 1)
+        Xd, yd, Xf, yf = [], [], [], []
+        for tid, row in cal.iterrows():
+            df = cal_trials[tid]
+            m = df["relay"].to_numpy() < 0.5
+            feats = self._regressors(df)[m]
+            if row["reference"] == "displacement":
+                ok = np.isfinite(df["dx_ref"].to_numpy()[m])
+                Xd.append(feats[ok]); yd.append(df["dx_ref"].to_numpy()[m][ok])
+            if row["tip"] == "blocked":
+                Xd.append(feats); yd.append(np.zeros(len(feats)))
+            if row["reference"] == "force":
+                ok = np.isfinite(df["f_ref"].to_numpy()[m])
+                Xf.append(feats[ok]); yf.append(df["f_ref"].to_numpy()[m][ok])
+            if row["tip"] == "free":
+                Xf.append(feats); yf.append(np.zeros(len(feats)))
+        if not Xd or not Xf:
+            raise CalibrationError("calibration trials give no displacement or no force equations for the regression")
+        Xd, yd = np.vstack(Xd), np.concatenate(yd)
+        Xf, yf = np.vstack(Xf), np.concatenate(yf)
+        names = ["Q", "V_p"] + self._extra_names
+        cd = _lstsq(Xd, yd)
+        if cfg.regression == "approx":
+            # f = (A3 / n_A) (Q - n_A C_p V_p) + extra   (eq. 52): one physical coefficient A3
+            zf = Xf[:, 0] - n_A * C_p * Xf[:, 1]
+            Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
+            cf = _lstsq(Zf, yf)
+            A3 = float(cf[0] * n_A)
+            self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3,
+                          "B21": A3 / n_A, "B22": -C_p * A3}
+            extra_f = cf[1:]
+        else:
+            cf = _lstsq(Xf, yf)
+            self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
+                          "A3": float(cf[0] * n_A)}
+            extra_f = cf[2:]
+        self.coef_["extra_dx"] = {n: float(c) for n, c in zip(names[2:], cd[2:])}
+        self.coef_["extra_f"] = {n: float(c) for n, c in zip(names[2:], extra_f)}
+        self.fit_report_["regression"] = {
+            "n_displacement_equations": int(len(yd)),
+            "n_force_equations": int(len(yf)),
+            "rms_dx_m": float(np.sqrt(np.mean((self._predict_raw(Xd)[0] - yd) ** 2))),
+            "rms_f_n": float(np.sqrt(np.mean((self._predict_raw(Xf)[1] - yf) ** 2))),
+        }
+
+        return self
+
+    def fit(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
+        """Calibrate H(q) then regress the sensing coefficients, on calibration trials only."""
+        return self.fit_hysteresis(trials, meta).fit_coefficients(trials, meta)
+
+    def _fit_ranges(self, cal_trials, cal) -> None:
+        p = _rig_params(self.rig)
+        # --- physical ranges for limiting (thesis sec. 5.2): from the calibration references
+        dx_all = np.concatenate([cal_trials[t]["dx_ref"].to_numpy() for t in cal.index])
+        f_all = np.concatenate([cal_trials[t]["f_ref"].to_numpy() for t in cal.index])
+        dx_max = float(np.nanmax(dx_all)) if np.isfinite(dx_all).any() else p["dx_tip_free"]
+        f_max = float(np.nanmax(f_all)) if np.isfinite(f_all).any() else np.inf
+        self.ranges_ = {"dx": [0.0, max(dx_max, 0.0)], "f": [0.0, max(f_max, 0.0)]}
+
+    # ------------------------------------------------------------------ helpers
+    def _transform(self, df: pd.DataFrame) -> pd.DataFrame:
+        for aug in self.augmentations:
+            if hasattr(aug, "transform"):
+                df = aug.transform(df)
+        return df
+
+    def _regressors(self, df: pd.DataFrame) -> np.ndarray:
+        Q = df["q"].to_numpy(dtype=float)
+        V_p = df["V"].to_numpy(dtype=float) - _eval_h(self.hysteresis_, Q)
+        cols = [Q, V_p]
+        names = []
+        for aug in self.augmentations:
+            if hasattr(aug, "features"):
+                F = aug.features(df)
+                cols += [np.asarray(F[c], dtype=float) for c in F.columns]
+                names += [f"{getattr(aug, 'name', type(aug).__name__)}:{c}" for c in F.columns]
+        self._extra_names = names
+        return np.column_stack(cols)
+
+    def _predict_raw(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = self.coef_
+        dx = c["A1"] * X[:, 0] + c["A2"] * X[:, 1]
+        f = c["B21"] * X[:, 0] + c["B22"] * X[:, 1]
+        for j, v in enumerate(c.get("extra_dx", {}).values()):
+            dx = dx + v * X[:, 2 + j]
+        for j, v in enumerate(c.get("extra_f", {}).values()):
+            f = f + v * X[:, 2 + j]
+        return dx, f
+
+    # ------------------------------------------------------------------ estimation
+    def estimate(self, df: pd.DataFrame) -> pd.DataFrame:
+        """Estimate tip displacement and force for one prepared trial (thesis eq. 52 + Fig. 24 post-processing).
+
+        Returns columns ``t, dx_hat, f_hat, dx_raw, f_raw, V_p, V_H, q`` (m, N, V, C). During the relay segment
+        (leads shorted) the estimates are 0 by construction of the known initial state.
+        """
+        if self.hysteresis_ is None:
+            raise RuntimeError("SelfSensingEstimator.estimate called before fit()")
+        df = self._transform(df)
+        X = self._regressors(df)
+        dx_raw, f_raw = self._predict_raw(X)
+        relay = df["relay"].to_numpy() >= 0.5
+        dx_raw = np.where(relay, 0.0, dx_raw)
+        f_raw = np.where(relay, 0.0, f_raw)
+        if not (np.isfinite(dx_raw).all() and np.isfinite(f_raw).all()):
+            raise ValueError("estimate: non-finite values in the estimate (check the trial's V and q columns)")
+        dx, f = dx_raw.copy(), f_raw.copy()
+        cfg = self.config
+        u = df["u_cmd"].to_numpy()
+        if cfg.dc_offset:
+            dx = sliding_dc_offset(dx, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+        if cfg.dc_offset_force:
+            f = sliding_dc_offset(f, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+        if cfg.limit:
+            dx = limit_to_range(dx, *self.ranges_["dx"])
+            f = limit_to_range(f, *self.ranges_["f"])
+        V_H = _eval_h(self.hysteresis_, df["q"].to_numpy(dtype=float))
+        return pd.DataFrame({
+            "t": df["t"].to_numpy(dtype=float),
+            "dx_hat": dx, "f_hat": f, "dx_raw": dx_raw, "f_raw": f_raw,
+            "V_p": X[:, 1], "V_H": V_H, "q": df["q"].to_numpy(dtype=float),
+        })
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        return {
+            "config": dataclasses.asdict(self.config),
+            "hysteresis": _h_to_dict(self.hysteresis_) if self.hysteresis_ is not None else None,
+            "h_slope": self.h_slope_,
+            "onsite": self.onsite_,
+            "coef": self.coef_,
+            "ranges": self.ranges_,
+            "fit_report": self.fit_report_,
+            "calibration_trials": self.calibration_trials_,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], rig: Any) -> "SelfSensingEstimator":
+        est = cls(config=SensingConfig(**d["config"]), rig=rig)
+        est.hysteresis_ = _h_from_dict(d["hysteresis"]) if d.get("hysteresis") else None
+        est.h_slope_ = float(d["h_slope"])
+        est.onsite_ = dict(d.get("onsite", {}))
+        est.coef_ = dict(d["coef"])
+        est.ranges_ = dict(d["ranges"])
+        est.fit_report_ = dict(d.get("fit_report", {}))
+        est.calibration_trials_ = list(d.get("calibration_trials", []))
+        return est

@@ -1,0 +1,238 @@
+"""The pipeline's stages as plain functions: each Snakemake rule's script calls exactly one of them.
+
+They read their inputs from disk, call the science in ``selfsense.*`` and write their outputs atomically, so they
+can also be used from a notebook or the ``selfsense`` command without Snakemake. The flow follows
+``ARCHITECTURE.md``::
+
+    data/raw/<d>/  -> validate -> signals/<trial>.parquet -> model/hysteresis.json -> model/sensing.json
+                   -> estimates/<trial>.parquet -> tables/*.csv|md -> figures/*.png|pdf -> report.html
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+
+from selfsense import io as sio
+from selfsense.sensing import SelfSensingEstimator, SensingConfig
+from selfsense.signals import prepare_trial
+
+SIGNAL_COLUMNS = ["t", "V", "q", "u_cmd", "relay", "dx_ref", "f_ref", "V_c", "V_s"]
+ESTIMATE_COLUMNS = ["t", "dx_hat", "f_hat", "dx_ref", "f_ref"]
+
+
+def _meta(dataset_dir: str | Path) -> pd.DataFrame:
+    return sio.load_trials(dataset_dir).set_index("trial")
+
+
+def sensing_config(config: Mapping[str, Any]) -> SensingConfig:
+    """Build the estimator configuration from the ``calibration`` and ``estimation`` sections of config.yaml."""
+    merged = dict(config.get("calibration", {}) or {})
+    merged.update(config.get("estimation", {}) or {})
+    return SensingConfig.from_mapping(merged)
+
+
+def validate(dataset_dir: str | Path, out_json: str | Path) -> dict:
+    """Check the whole dataset against DATA_FORMAT.md; raise ``ContractError`` listing every problem."""
+    problems = sio.validate_dataset(dataset_dir)
+    if problems:
+        raise sio.ContractError(problems)
+    meta = _meta(dataset_dir)
+    summary = {"dataset": Path(dataset_dir).name, "valid": True, "n_trials": int(len(meta)),
+               "trials": sorted(meta.index.tolist())}
+    sio.write_json_atomic(summary, out_json)
+    return summary
+
+
+def ingest(dataset_dir: str | Path, trial: str, out_parquet: str | Path) -> pd.DataFrame:
+    """Raw DAQ log -> SI signals with actuator voltage and charge (thesis eqs. 56-57)."""
+    rig = sio.load_rig(dataset_dir)
+    df = prepare_trial(sio.trial_signals(dataset_dir, trial, rig=rig), rig)
+    df = df[SIGNAL_COLUMNS].reset_index(drop=True)
+    sio.write_parquet_atomic(df, out_parquet)
+    return df
+
+
+def _load_signals(paths: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
+    return {t: pd.read_parquet(p) for t, p in paths.items()}
+
+
+def calibrate(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], config: Mapping[str, Any],
+              out_json: str | Path) -> SelfSensingEstimator:
+    """Calibrate H(q) on the free-tip calibration trial (thesis eq. 55 or paper eq. 23) with Kuhnen's QP."""
+    rig = sio.load_rig(dataset_dir)
+    est = SelfSensingEstimator(config=sensing_config(config), rig=rig)
+    est.fit_hysteresis(_load_signals(signal_paths), _meta(dataset_dir))
+    sio.write_json_atomic(est.to_dict(), out_json)
+    return est
+
+
+def regress(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], hysteresis_json: str | Path,
+            out_json: str | Path) -> SelfSensingEstimator:
+    """Regress the sensing coefficients A1-A3 (thesis eq. 52) on the calibration trials."""
+    rig = sio.load_rig(dataset_dir)
+    est = SelfSensingEstimator.from_dict(json.loads(Path(hysteresis_json).read_text()), rig)
+    est.fit_coefficients(_load_signals(signal_paths), _meta(dataset_dir))
+    sio.write_json_atomic(est.to_dict(), out_json)
+    return est
+
+
+def load_estimator(dataset_dir: str | Path, model_json: str | Path) -> SelfSensingEstimator:
+    return SelfSensingEstimator.from_dict(json.loads(Path(model_json).read_text()), sio.load_rig(dataset_dir))
+
+
+def estimate(dataset_dir: str | Path, signal_path: str | Path, model_json: str | Path,
+             out_parquet: str | Path, full_out: str | Path | None = None) -> pd.DataFrame:
+    """Estimate tip displacement and force of one trial; writes the contract columns ``t, dx_hat, f_hat, dx_ref, f_ref``."""
+    est = load_estimator(dataset_dir, model_json)
+    sig = pd.read_parquet(signal_path)
+    out = est.estimate(sig)
+    out["dx_ref"] = sig["dx_ref"].to_numpy()
+    out["f_ref"] = sig["f_ref"].to_numpy()
+    sio.write_parquet_atomic(out[ESTIMATE_COLUMNS].reset_index(drop=True), out_parquet)
+    if full_out is not None:
+        sio.write_parquet_atomic(out.reset_index(drop=True), full_out)
+    return out
+
+
+def score(dataset_dir: str | Path, estimate_paths: Mapping[str, str | Path], out_dir: str | Path) -> pd.DataFrame:
+    """Thesis Table 3 and per-trial errors (CSV + Markdown)."""
+    from selfsense.report import tables
+
+    out_dir = Path(out_dir)
+    meta = _meta(dataset_dir).reset_index()
+    ests = {t: pd.read_parquet(p) for t, p in estimate_paths.items()}
+    pt = tables.per_trial_table(ests, meta)
+    t3 = tables.table3(pt)
+    sio.write_text_atomic(pt.to_csv(index=False, float_format="%.6g"), out_dir / "per_trial.csv")
+    sio.write_text_atomic(t3.to_csv(index=False, float_format="%.6g"), out_dir / "table3.csv")
+    sio.write_text_atomic(tables.per_trial_markdown(pt), out_dir / "per_trial.md")
+    sio.write_text_atomic(tables.table3_markdown(t3), out_dir / "table3.md")
+    return t3
+
+
+def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], config: Mapping[str, Any],
+                  out_csv: str | Path, out_md: str | Path) -> pd.DataFrame:
+    """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23), same data and settings."""
+    from selfsense.report import tables
+
+    rig = sio.load_rig(dataset_dir)
+    meta = _meta(dataset_dir)
+    sigs = _load_signals(signal_paths)
+    rows = []
+    for mode in ("thesis", "onsite"):
+        cfg = dict(config)
+        cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode)
+        est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+        ests = {}
+        for t, s in sigs.items():
+            e = est.estimate(s)
+            e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
+            ests[t] = e
+        t3 = tables.table3(tables.per_trial_table(ests, meta.reset_index()))
+        for _, r in t3.iterrows():
+            rows.append({"h_mode": mode, "measurement": r["measurement"], "mean_abs_error": r["mean_abs_error"],
+                         "percent_of_range": r["percent_of_range"], "n_trials": r["n_trials"],
+                         "h_fit_rms_pct": est.fit_report_["hysteresis"].get("rms_pct", float("nan"))})
+    df = pd.DataFrame(rows)
+    sio.write_text_atomic(df.to_csv(index=False, float_format="%.6g"), out_csv)
+    lines = ["### Table 3 for both H(q) calibration modes", "",
+             "| H(q) calibration | measurement | % of range (validation mean) | trials |", "|---|---|---|---|"]
+    label = {"thesis": "thesis eq. (55)", "onsite": "on-site, paper eq. (23)"}
+    for _, r in df.iterrows():
+        lines.append(f"| {label[r['h_mode']]} | {r['measurement']} | {r['percent_of_range']:.2f} % | {r['n_trials']} |")
+    sio.write_text_atomic("\n".join(lines) + "\n", out_md)
+    return df
+
+
+def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
+            estimate_paths: Mapping[str, str | Path], per_trial_csv: str | Path, out_dir: str | Path) -> dict:
+    """Regenerate the papers' figures; returns {figure stem: caption} (also written to captions.json)."""
+    from selfsense.report import figures as F
+    from selfsense.sensing.estimator import _eval_h, h_target
+
+    out_dir = Path(out_dir)
+    meta = _meta(dataset_dir)
+    est = load_estimator(dataset_dir, model_json)
+    free_trial = est.fit_report_["hysteresis"]["trial"]
+    sig_free = pd.read_parquet(signal_paths[free_trial])
+    caps = {}
+    caps["fig17_voltage_charge"] = F.fig_voltage_charge(sig_free, out_dir, free_trial)
+    Ht = h_target(sig_free["V"].to_numpy(), sig_free["q"].to_numpy(), est.h_slope_)
+    Hf = _eval_h(est.hysteresis_, sig_free["q"].to_numpy())
+    rep = est.fit_report_["hysteresis"]
+    caps["fig21_h_calibration"] = F.fig_h_calibration(sig_free, Ht, Hf, out_dir, free_trial,
+                                                      rep.get("rms_pct", np.nan), rep.get("max_pct", np.nan))
+    full = {}
+    for t in estimate_paths:
+        e = est.estimate(pd.read_parquet(signal_paths[t]))
+        s = pd.read_parquet(signal_paths[t])
+        e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
+        full[t] = e
+    disp = [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement" and meta.loc[t, "role"] == "validation"]
+    disp = disp or [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement"]
+    if disp:
+        pick = next((t for t in disp if meta.loc[t, "tip"] == "object"), disp[0])
+        caps["fig24_limiting_dc_offset"] = F.fig_limiting(full[pick], out_dir, pick)
+    pt = pd.read_csv(per_trial_csv)
+    caps["fig25-30_displacement_trials"] = F.fig_trials(full, meta.reset_index(), "displacement", out_dir, pt)
+    caps["fig31-36_force_trials"] = F.fig_trials(full, meta.reset_index(), "force", out_dir, pt)
+    obj = [t for t in sorted(full) if meta.loc[t, "tip"] == "object"]
+    if obj:
+        caps["fig37_force_displacement"] = F.fig_force_displacement(full[obj[0]], out_dir, obj[0])
+    # Fig. 39: a force trial minus the free-tip estimate under the same input history (same signal family)
+    forces = [t for t in sorted(full) if meta.loc[t, "reference"] == "force" and meta.loc[t, "tip"] != "free"]
+    frees = [t for t in sorted(full) if meta.loc[t, "tip"] == "free"]
+    for ft in forces:
+        same = [t for t in frees if meta.loc[t, "signal"] == meta.loc[ft, "signal"] and len(full[t]) == len(full[ft])]
+        if same:
+            caps["fig39_mismatch_subtraction"] = F.fig_mismatch(full[ft], full[same[0]], out_dir, ft, same[0])
+            break
+    sio.write_json_atomic(caps, out_dir / "captions.json")
+    return caps
+
+
+def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Path, failed: list[str] | None = None) -> str:
+    """One self-contained HTML report: tables, figures with captions, model summary, gap verdict if present."""
+    from selfsense.report.html import build_report
+
+    html = build_report(Path(dataset_dir), Path(results_dir), failed=failed or [])
+    sio.write_text_atomic(html, out_html)
+    return str(out_html)
+
+
+class logged:
+    """Context manager for rule scripts: stdout/stderr go to the rule's log; an exception is logged, then re-raised."""
+
+    def __init__(self, log_path: str | Path):
+        self.log_path = Path(log_path)
+
+    def __enter__(self):
+        import sys
+
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.log_path, "w")
+        self._saved = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = self._fh
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        import sys
+        import traceback
+
+        if exc is not None:
+            self._fh.write(f"ERROR: {exc}\n")
+            traceback.print_exception(exc_type, exc, tb, file=self._fh)
+        sys.stdout, sys.stderr = self._saved
+        self._fh.close()
+        if exc is not None:
+            print(f"ERROR: {exc}", file=sys.stderr)
+        return False
+
+
+def by_trial(paths) -> dict[str, str]:
+    """Map a list of ``.../<trial>.parquet`` paths to {trial: path}."""
+    return {Path(p).stem: str(p) for p in paths}

@@ -1,0 +1,4 @@
+from selfsense import stages
+
+with stages.logged(snakemake.log[0]):  # noqa: F821
+    print(stages.report(snakemake.params.dataset_dir, snakemake.params.results_dir, snakemake.output[0]))  # noqa: F821
