@@ -1,0 +1,127 @@
+"""Atomic, deterministic writing of pipeline artefacts.
+
+Every writer here writes to a temporary file in the destination directory, flushes and fsyncs it, then
+``os.replace``-s it over the target, so a crash or an exception mid-write never leaves a partial file
+(DATA_FORMAT.md: "never a half-written output"). Nothing is ever written under a ``data/raw`` folder.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import IO, Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["RawDataWriteError", "assert_not_in_raw", "atomic_write", "atomic_write_bytes", "atomic_write_text",
+           "write_parquet_atomic", "write_json_atomic", "dumps_json"]
+
+
+class RawDataWriteError(PermissionError):
+    """Refusal to write inside ``data/raw`` (raw datasets are read-only for the pipeline)."""
+
+
+def assert_not_in_raw(path: str | os.PathLike) -> Path:
+    """Raise :class:`RawDataWriteError` if ``path`` (resolved, symlinks followed) lies under any ``data/raw``."""
+    p = Path(path).expanduser()
+    resolved = p.resolve()
+    for cand in (p.absolute(), resolved):
+        parts = cand.parts
+        for i in range(len(parts) - 1):
+            if parts[i] == "data" and parts[i + 1] == "raw":
+                raise RawDataWriteError(f"refusing to write {p}: raw datasets under data/raw are read-only")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "wb", encoding: str | None = None) -> Iterator[IO]:
+    """Context manager yielding a temp file beside ``path``; on success it replaces ``path`` atomically,
+    on any exception the temp file is removed and ``path`` is untouched."""
+    path = assert_not_in_raw(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode, encoding=encoding, **({"newline": ""} if "b" not in mode else {})) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    with atomic_write(path, "wb") as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
+    with atomic_write(path, "w", encoding=encoding) as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def parquet_bytes(df: pd.DataFrame) -> bytes:
+    """Deterministic Parquet bytes of ``df``: no index, no pandas/arrow schema metadata, fixed options.
+
+    The frame must have a default RangeIndex (a meaningful index would be silently lost: reset it first).
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    if not isinstance(df.index, pd.RangeIndex) or df.index.start != 0 or df.index.step != 1:
+        raise ValueError("write_parquet_atomic: the frame must have a default RangeIndex; "
+                         "call df.reset_index() (keep the index as a column) first")
+    if not all(isinstance(c, str) for c in df.columns):
+        raise ValueError("write_parquet_atomic: column names must be strings")
+    table = pa.Table.from_pandas(df, preserve_index=False).replace_schema_metadata(None)
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink, compression="zstd", compression_level=3, use_dictionary=False,
+                   write_statistics=True, store_schema=False)
+    return sink.getvalue().to_pybytes()
+
+
+def write_parquet_atomic(df: pd.DataFrame, path: str | os.PathLike) -> Path:
+    """Write ``df`` to ``path`` as deterministic Parquet (same frame -> same bytes), atomically."""
+    return atomic_write_bytes(path, parquet_bytes(df))
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _check_finite(o: Any) -> None:
+    if isinstance(o, float) and not math.isfinite(o):
+        raise ValueError(f"JSON artefacts must not contain NaN/inf (found {o!r}); use null")
+    if isinstance(o, dict):
+        for v in o.values():
+            _check_finite(v)
+    elif isinstance(o, (list, tuple)):
+        for v in o:
+            _check_finite(v)
+
+
+def dumps_json(obj: Any) -> str:
+    """Deterministic JSON: sorted keys, 2-space indent, floats as ``repr`` (shortest round-trip), strict
+    (no NaN/inf), numpy scalars/arrays converted, trailing newline."""
+    text = json.dumps(obj, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=True, default=_json_default)
+    _check_finite(json.loads(text))
+    return text + "\n"
+
+
+def write_json_atomic(obj: Any, path: str | os.PathLike) -> Path:
+    """Write ``obj`` as deterministic JSON (see :func:`dumps_json`), atomically."""
+    return atomic_write_text(path, dumps_json(obj))

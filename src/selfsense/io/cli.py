@@ -1,0 +1,36 @@
+"""``selfsense validate DATASET_DIR``: check a raw dataset against the contract (DATA_FORMAT.md).
+
+Exit 0 and one OK line for a valid dataset; otherwise exit 1 and one line per problem (on stdout).
+Exit 2 for a usage error.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .dataset import _dataset_problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="selfsense validate", description=__doc__.splitlines()[0])
+    ap.add_argument("dataset_dir", nargs="+", help="dataset folder(s), e.g. data/raw/tweezer_sim")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    rc = 0
+    for dd in args.dataset_dir:
+        d = Path(dd)
+        rig, trials, probs, n_samples = _dataset_problems(d)
+        if probs:
+            rc = 1
+            for p in probs:
+                print(f"{d}/{p}" if not str(p).startswith(str(d)) else str(p))
+            print(f"FAILED {d}: {len(probs)} problem{'s' if len(probs) != 1 else ''}", file=sys.stderr)
+        else:
+            ncal = int((trials["role"] == "calibration").sum())
+            print(f"OK {d}: dataset {rig.dataset!r}, {len(trials)} trials ({ncal} calibration, "
+                  f"{len(trials) - ncal} validation), {n_samples} samples at {rig.sample_rate_hz:g} Hz")
+    return rc
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""A whole raw dataset: validation and SI conversion of one trial (DATA_FORMAT.md, thesis eqs. 56-57)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import ContractError, Problem
+from .logs import check_log
+from .rig import Rig, check_rig
+from .trials import check_trials
+
+__all__ = ["Dataset", "validate_dataset", "load_dataset", "trial_signals", "to_si", "SI_COLUMNS"]
+
+#: columns of :func:`trial_signals`
+SI_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "V_c", "V_s", "relay", "dx_ref", "f_ref")
+
+
+@dataclass(frozen=True)
+class Dataset:
+    path: Path
+    rig: Rig
+    trials: pd.DataFrame  #: as returned by :func:`selfsense.io.load_trials`
+
+    @property
+    def name(self) -> str:
+        return self.rig.dataset
+
+
+def _dataset_problems(dataset_dir: Path) -> tuple[Rig | None, pd.DataFrame | None, list[Problem], int]:
+    if not dataset_dir.is_dir():
+        return None, None, [Problem(str(dataset_dir), None, None, "a dataset folder", "no such directory")], 0
+    rig, probs = check_rig(dataset_dir)
+    trials, tprobs = check_trials(dataset_dir)
+    probs = probs + tprobs
+    n_samples = 0
+    if trials is not None:
+        for rec in trials.itertuples(index=False):
+            df, lp = check_log(dataset_dir / rec.file, rig, rec.reference, name=rec.file)
+            probs += lp
+            if df is not None:
+                n_samples += len(df)
+    return rig, trials, probs, n_samples
+
+
+def validate_dataset(dataset_dir: str | Path) -> list[Problem]:
+    """Check a raw dataset folder against the contract; return every problem found (empty list = valid).
+
+    ``rig.yaml``, ``trials.csv`` and every log named by ``trials.csv`` are checked independently, so one
+    broken file does not hide the problems of the others. Never raises on bad data.
+    """
+    return _dataset_problems(Path(dataset_dir))[2]
+
+
+def load_dataset(dataset_dir: str | Path) -> Dataset:
+    """Validate the whole dataset and return :class:`Dataset`; raise :class:`ContractError` on any problem."""
+    d = Path(dataset_dir)
+    rig, trials, probs, _ = _dataset_problems(d)
+    if probs or rig is None or trials is None:
+        raise ContractError(probs, str(d))
+    return Dataset(d, rig, trials)
+
+
+def to_si(df: pd.DataFrame, rig: Rig, reference: str | None) -> pd.DataFrame:
+    """Canonical raw log -> SI signals (DATA_FORMAT.md; thesis 000_18d138f03f1777c3.txt eqs. 56-57).
+
+    ``V_c = amplifier_gain * u_cmd`` [V], ``V_s = v_shunt / inamp_gain`` [V],
+    ``dx_ref = 2 * laser_m_per_v * laser`` [m] (both arms, NaN unless reference = 'displacement'),
+    ``f_ref = load_cell_n_per_v * load_cell`` [N] (NaN unless reference = 'force').
+    """
+    n = len(df)
+    nan = np.full(n, np.nan)
+    u = df["u_cmd"].to_numpy(np.float64)
+    out = pd.DataFrame({
+        "t": df["t"].to_numpy(np.float64),
+        "u_cmd": u,
+        "V_c": rig.amplifier_gain * u,
+        "V_s": df["v_shunt"].to_numpy(np.float64) / rig.inamp_gain,
+        "relay": df["relay"].to_numpy(np.float64),
+        "dx_ref": 2.0 * rig.reference.laser_m_per_v * df["laser"].to_numpy(np.float64)
+        if reference == "displacement" else nan,
+        "f_ref": rig.reference.load_cell_n_per_v * df["load_cell"].to_numpy(np.float64)
+        if reference == "force" else nan.copy(),
+    })
+    return out
+
+
+def trial_signals(dataset_dir: str | Path, trial: str, rig: Rig | None = None) -> pd.DataFrame:
+    """SI signals of one trial: columns ``t, u_cmd, V_c, V_s, relay, dx_ref, f_ref`` (see :func:`to_si`).
+
+    Checks ``rig.yaml`` (unless ``rig`` is given), ``trials.csv`` and this trial's log; raises
+    :class:`ContractError` on any problem (a trial id not in ``trials.csv`` included).
+    """
+    d = Path(dataset_dir)
+    probs: list[Problem] = []
+    if rig is None:
+        rig, probs = check_rig(d)
+    trials, tprobs = check_trials(d)
+    probs = probs + tprobs
+    if probs or rig is None or trials is None:
+        raise ContractError(probs, str(d))
+    sel = trials[trials["trial"] == trial]
+    if sel.empty:
+        raise ContractError([Problem("trials.csv", "trial", None, "a trial id listed in trials.csv", trial)], str(d))
+    rec = sel.iloc[0]
+    df, lp = check_log(d / rec["file"], rig, rec["reference"], name=rec["file"])
+    if lp or df is None:
+        raise ContractError(lp, str(d))
+    out = to_si(df, rig, rec["reference"])
+    out.attrs.update({"dataset": rig.dataset, "trial": trial, "reference": rec["reference"],
+                      "tip": rec["tip"], "role": rec["role"]})
+    return out

@@ -1,0 +1,367 @@
+"""Trial DAQ logs (CSV or Parquet): reading and checking against the raw-dataset contract.
+
+Canonical channels (DATA_FORMAT.md): ``t`` [s], ``u_cmd`` [V], ``v_shunt`` [V], ``laser`` [V],
+``load_cell`` [V], ``relay`` [0/1]. A rig may map other column names/units onto these through
+``rig.yaml: channel_map`` (see :mod:`selfsense.io.rig`).
+
+Cheap checks first: the file size, the magic bytes / header line / Parquet footer are inspected before the
+body is read, so a wrong or corrupt multi-GB file fails in milliseconds instead of being read whole.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import ContractError, Problem
+from .rig import CANONICAL_COLUMNS, Rig
+from .trials import column_problems
+
+__all__ = ["read_log", "check_log", "check_signals", "LIMITS"]
+
+#: plausibility limits (documented in docs/data_format.md)
+LIMITS = {
+    "u_cmd_max_v": 10.5,        # amplifier input is 0-10 V: more means mV logged as V
+    "u_cmd_min_v": -1.0,
+    "u_cmd_min_peak_v": 0.05,   # a drive smaller than this is no drive (or V logged as kV)
+    "rate_tolerance": 0.05,     # |fs_measured / sample_rate_hz - 1|
+    "gap_periods": 3.0,         # a step > 3 nominal periods is a gap
+    "rail_fraction": 0.999,     # |x| >= 0.999 * adc_range_v counts as "at the rail"
+    "rail_max_share": 0.005,    # more than 0.5 % of samples at the rail = saturated
+    "rail_max_run": 10,         # or this many consecutive samples at the rail
+    "clip_min_level": 0.5,      # identical extreme runs only count above 0.5 * adc_range_v
+    "adc_overrange": 1.05,      # |x| > 1.05 * adc_range_v cannot come from the ADC: wrong units
+}
+_PROBE = 1 << 16  # bytes read at the start / end of a file for the cheap checks
+_ANALOG = ("u_cmd", "v_shunt", "laser", "load_cell")
+
+
+def _kind(path: Path, rig: Rig | None) -> str | None:
+    if rig is not None and rig.format != "auto":
+        return rig.format
+    s = path.suffix.lower()
+    return {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(s)
+
+
+def _probe(path: Path, size: int) -> tuple[bytes, bytes]:
+    with open(path, "rb") as fh:
+        head = fh.read(min(size, _PROBE))
+        if size > _PROBE:
+            fh.seek(max(size - _PROBE, _PROBE))
+            tail = fh.read()
+        else:
+            tail = head
+    return head, tail
+
+
+def _csv_header(name: str, path: Path, size: int) -> tuple[list[str] | None, list[Problem]]:
+    head, tail = _probe(path, size)
+    if b"\x00" in head or b"\x00" in tail:
+        return None, [Problem(name, None, None, "a text CSV file", "NUL bytes (binary, sparse or corrupt file)")]
+    nl = head.find(b"\n")
+    if nl < 0 and size > len(head):
+        return None, [Problem(name, None, None, f"a header line within the first {_PROBE} bytes",
+                              "no line break")]
+    line = head[: nl if nl >= 0 else len(head)]
+    try:
+        text = line.decode("utf-8-sig").rstrip("\r")
+    except UnicodeDecodeError:
+        return None, [Problem(name, None, None, "a UTF-8 header line", "undecodable bytes")]
+    header = next(csv.reader([text]), [])
+    header = [h.strip() for h in header]
+    if not any(header):
+        return None, [Problem(name, None, None, "a header line naming the columns", "blank first line")]
+    return header, []
+
+
+def _parquet_header(name: str, path: Path, size: int):
+    import pyarrow.parquet as pq
+
+    head, tail = _probe(path, size)
+    if size < 12 or head[:4] != b"PAR1" or tail[-4:] != b"PAR1":
+        return None, None, [Problem(name, None, None, "a Parquet file (PAR1 magic at both ends)",
+                                    "missing magic bytes: truncated or corrupt file")]
+    try:
+        pf = pq.ParquetFile(path)
+        schema = pf.schema_arrow
+    except Exception as e:  # noqa: BLE001 - pyarrow raises several types; report one line
+        return None, None, [Problem(name, None, None, "a readable Parquet footer",
+                                    f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")]
+    names = [n for n in schema.names if not (n.startswith("__index_level_") and n.endswith("__"))]
+    return pf, names, []
+
+
+def _bad_cells(name: str, raw: pd.DataFrame, cols: list[str]) -> tuple[pd.DataFrame, list[Problem]]:
+    """Coerce text columns to float; one Problem per column naming the first non-numeric cell."""
+    probs: list[Problem] = []
+    out = {}
+    for c in cols:
+        s = raw[c]
+        if pd.api.types.is_numeric_dtype(s) or pd.api.types.is_bool_dtype(s):
+            out[c] = s.astype("float64")
+            continue
+        txt = s.astype(object)
+        num = pd.to_numeric(txt, errors="coerce")
+        blank = txt.isna() | txt.map(lambda v: isinstance(v, str) and v.strip().lower() in ("", "nan", "na"))
+        bad = num.isna().to_numpy() & ~blank.to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            n = int(bad.sum())
+            more = f" ({n} non-numeric cells, first shown)" if n > 1 else ""
+            probs.append(Problem(name, c, i + 1, "a number" + more, str(txt.iloc[i])))
+        out[c] = num.astype("float64")
+    return pd.DataFrame(out), probs
+
+
+def _runs_max(mask: np.ndarray) -> int:
+    if not mask.any():
+        return 0
+    m = np.concatenate(([0], mask.view(np.int8) if mask.dtype == bool else mask.astype(np.int8), [0]))
+    d = np.diff(m)
+    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    return int((ends - starts).max())
+
+
+def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | None = None,
+                  name: str = "<log>") -> list[Problem]:
+    """Physics-free plausibility checks of a canonical log frame (columns ``CANONICAL_COLUMNS``).
+
+    ``reference`` (``'displacement'`` / ``'force'`` / ``None``) says which reference channel must be finite;
+    with ``None`` NaN is allowed in both ``laser`` and ``load_cell`` (inf never is).
+    """
+    probs: list[Problem] = []
+    n = len(df)
+    if n == 0:
+        return [Problem(name, None, None, "at least 2 samples", "no data rows (empty log)")]
+    if n < 2:
+        return [Problem(name, None, None, "at least 2 samples", f"{n} row")]
+    adc = rig.adc_range_v if rig is not None else 10.0
+    arr = {c: df[c].to_numpy(dtype=np.float64) for c in CANONICAL_COLUMNS}
+    must_be_finite = {"t", "u_cmd", "v_shunt", "relay"}
+    if reference == "displacement":
+        must_be_finite.add("laser")
+    elif reference == "force":
+        must_be_finite.add("load_cell")
+    for c in CANONICAL_COLUMNS:
+        x = arr[c]
+        inf = np.isinf(x)
+        if inf.any():
+            i = int(np.flatnonzero(inf)[0])
+            probs.append(Problem(name, c, i + 1, f"finite values ({int(inf.sum())} inf)", float(x[i])))
+        nan = np.isnan(x)
+        if c in must_be_finite and nan.any():
+            i = int(np.flatnonzero(nan)[0])
+            why = f" (reference = {reference!r})" if c in ("laser", "load_cell") else ""
+            probs.append(Problem(name, c, i + 1, f"no NaN in a required channel{why} ({int(nan.sum())} NaN)",
+                                 "NaN"))
+    # --- time -------------------------------------------------------------------------------------
+    t = arr["t"]
+    fin = np.isfinite(t)
+    if fin.sum() >= 2:
+        idx = np.flatnonzero(fin)
+        dt = np.diff(t[idx])
+        rows = idx[1:] + 1  # 1-based row of the later sample
+        for mask, what in ((dt == 0, "duplicated"), (dt < 0, "decreasing")):
+            if mask.any():
+                k = int(np.flatnonzero(mask)[0])
+                probs.append(Problem(name, "t", int(rows[k]),
+                                     f"strictly increasing time ({int(mask.sum())} {what} steps)",
+                                     f"{what} time t = {t[idx[k + 1]]:.9g} s after {t[idx[k]]:.9g} s"))
+        pos = dt[dt > 0]
+        if pos.size:
+            med = float(np.median(pos))
+            fs_meas = 1.0 / med
+            period = med
+            if rig is not None:
+                fs = rig.sample_rate_hz
+                if abs(fs_meas / fs - 1.0) > LIMITS["rate_tolerance"]:
+                    ratio = fs_meas / fs
+                    hint = ""
+                    if 5e-4 < ratio < 2e-3:
+                        hint = " (t logged in ms?)"
+                    elif 5e-7 < ratio < 2e-6:
+                        hint = " (t logged in us?)"
+                    probs.append(Problem(name, "t", None,
+                                         f"a sample rate within 5 % of rig.yaml sample_rate_hz = {fs:g} Hz{hint}",
+                                         f"{fs_meas:.6g} Hz (median step {med:.6g} s)"))
+                else:
+                    period = 1.0 / fs
+            gap = dt > LIMITS["gap_periods"] * period
+            if gap.any():
+                k = int(np.flatnonzero(gap)[0])
+                probs.append(Problem(name, "t", int(rows[k]),
+                                     f"no gaps longer than {LIMITS['gap_periods']:g} sample periods "
+                                     f"({period:.6g} s; {int(gap.sum())} gaps)",
+                                     f"a step of {dt[k]:.6g} s"))
+    # --- relay ------------------------------------------------------------------------------------
+    r = arr["relay"]
+    rf = r[np.isfinite(r)]
+    bad = np.isfinite(r) & (r != 0) & (r != 1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        probs.append(Problem(name, "relay", i + 1, f"0 or 1 ({int(bad.sum())} other values)", float(r[i])))
+    elif rf.size:
+        if not (rf == 1).any():
+            probs.append(Problem(name, "relay", 1, "relay = 1 (leads shorted) at the start of the log",
+                                 "relay never 1 (never shorts)"))
+        elif r[0] != 1:
+            probs.append(Problem(name, "relay", 1, "relay = 1 (leads shorted) at the start of the log",
+                                 float(r[0])))
+        elif (rf == 1).all():
+            probs.append(Problem(name, "relay", None, "relay = 0 at some point (actuator connected)",
+                                 "relay always 1"))
+    # --- analog channels: units and saturation ---------------------------------------------------
+    u = arr["u_cmd"]
+    uf = u[np.isfinite(u)]
+    if uf.size:
+        umax, umin = float(uf.max()), float(uf.min())
+        if umax > LIMITS["u_cmd_max_v"]:
+            i = int(np.flatnonzero(u > LIMITS["u_cmd_max_v"])[0])
+            probs.append(Problem(name, "u_cmd", i + 1,
+                                 f"u_cmd <= {LIMITS['u_cmd_max_v']:g} V (amplifier input 0-10 V; mV logged as V?)",
+                                 f"max {umax:.6g} V"))
+        elif umin < LIMITS["u_cmd_min_v"]:
+            i = int(np.flatnonzero(u < LIMITS["u_cmd_min_v"])[0])
+            probs.append(Problem(name, "u_cmd", i + 1, f"u_cmd >= {LIMITS['u_cmd_min_v']:g} V "
+                                 "(amplifier input 0-10 V)", f"min {umin:.6g} V"))
+        elif max(abs(umax), abs(umin)) < LIMITS["u_cmd_min_peak_v"]:
+            probs.append(Problem(name, "u_cmd", None,
+                                 f"a drive signal, max |u_cmd| >= {LIMITS['u_cmd_min_peak_v']:g} V "
+                                 "(no drive, or V logged as kV?)", f"max |u_cmd| {max(abs(umax), abs(umin)):.3g} V"))
+    for c in ("v_shunt", "laser", "load_cell"):
+        x = arr[c]
+        xf = x[np.isfinite(x)]
+        if xf.size == 0:
+            continue
+        amax = float(np.abs(xf).max())
+        if amax > LIMITS["adc_overrange"] * adc:
+            i = int(np.flatnonzero(np.abs(x) > LIMITS["adc_overrange"] * adc)[0])
+            probs.append(Problem(name, c, i + 1,
+                                 f"values within the +-{adc:g} V ADC range (mV logged as V?)", f"{x[i]:.6g} V"))
+            continue
+        rail = np.abs(x) >= LIMITS["rail_fraction"] * adc
+        nr = int(rail.sum())
+        if nr and (nr > LIMITS["rail_max_share"] * n or _runs_max(rail) >= LIMITS["rail_max_run"]):
+            i = int(np.flatnonzero(rail)[0])
+            probs.append(Problem(name, c, i + 1, f"no samples pinned at the +-{adc:g} V ADC rails (saturation)",
+                                 f"{nr} samples ({100.0 * nr / n:.2g} %) at |x| >= {LIMITS['rail_fraction'] * adc:g} V"))
+            continue
+        if amax >= LIMITS["clip_min_level"] * adc:
+            need = max(LIMITS["rail_max_run"], math.ceil(LIMITS["rail_max_share"] * n))
+            for ext in (float(xf.max()), float(xf.min())):
+                if abs(ext) < LIMITS["clip_min_level"] * adc:
+                    continue
+                at = x == ext
+                if _runs_max(at) >= need:
+                    i = int(np.flatnonzero(at)[0])
+                    probs.append(Problem(name, c, i + 1, "no runs of identical extreme values (clipped channel)",
+                                         f"{_runs_max(at)} consecutive samples at {ext:.6g} V"))
+                    break
+    if "v_shunt" in arr:
+        v = arr["v_shunt"]
+        vf = v[np.isfinite(v)]
+        if vf.size > 1 and float(vf.max()) == float(vf.min()):
+            probs.append(Problem(name, "v_shunt", None, "a varying shunt signal (in-amp connected?)",
+                                 f"constant {vf[0]:.6g} V"))
+    return probs
+
+
+def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = None,
+              name: str | None = None) -> tuple[pd.DataFrame | None, list[Problem]]:
+    """Read and check one trial log; return ``(canonical DataFrame or None, problems)``.
+
+    Never raises on bad data. The frame has the columns ``CANONICAL_COLUMNS`` as float64 in SI
+    (after ``rig.channel_map`` renaming/scaling) and a RangeIndex; it is ``None`` when the file could not
+    be read (missing, empty, corrupt, wrong header).
+    """
+    path = Path(path)
+    name = name or path.name
+    if not path.is_file():
+        return None, [Problem(name, None, None, "an existing log file", "no such file")]
+    size = path.stat().st_size
+    if size == 0:
+        return None, [Problem(name, None, None, "a header line and data rows", "empty file (0 bytes)")]
+    kind = _kind(path, rig)
+    if kind is None:
+        return None, [Problem(name, None, None, "a .csv or .parquet log (or rig.yaml format)", path.suffix)]
+    cmap = rig.channel_map if rig is not None else None
+    fcol = {c: (cmap.file_column(c) if cmap else c) for c in CANONICAL_COLUMNS}
+    wanted = tuple(fcol[c] for c in CANONICAL_COLUMNS)
+    if kind == "csv":
+        header, probs = _csv_header(name, path, size)
+        if probs:
+            return None, probs
+        probs = column_problems(name, header, wanted)
+        if probs:
+            return None, probs
+        try:
+            raw = pd.read_csv(path, usecols=list(wanted), dtype="float64", engine="c", encoding="utf-8-sig",
+                              skipinitialspace=True)
+            num_probs: list[Problem] = []
+        except (ValueError, TypeError):
+            try:
+                raw = pd.read_csv(path, usecols=list(wanted), dtype=object, engine="c", encoding="utf-8-sig",
+                                  keep_default_na=False, skipinitialspace=True)
+            except Exception as e:  # noqa: BLE001
+                return None, [Problem(name, None, None, "a well-formed CSV", _one_line(e))]
+            raw, num_probs = _bad_cells(name, raw, list(wanted))
+        except Exception as e:  # noqa: BLE001 - ParserError, UnicodeDecodeError, ...
+            return None, [Problem(name, None, None, "a well-formed CSV", _one_line(e))]
+    else:
+        pf, names, probs = _parquet_header(name, path, size)
+        if probs:
+            return None, probs
+        probs = column_problems(name, names, wanted)
+        if probs:
+            return None, probs
+        if pf.metadata.num_rows == 0:
+            return None, [Problem(name, None, None, "at least 2 samples", "no data rows (empty log)")]
+        try:
+            table = pf.read(columns=list(wanted))
+            raw = table.to_pandas()
+        except Exception as e:  # noqa: BLE001
+            return None, [Problem(name, None, None, "readable Parquet data (truncated or corrupt file?)",
+                                  _one_line(e))]
+        num_probs = []
+        for c in wanted:
+            s = raw[c]
+            if not (pd.api.types.is_numeric_dtype(s) or pd.api.types.is_bool_dtype(s)
+                    or pd.api.types.is_string_dtype(s) or s.dtype == object):
+                num_probs.append(Problem(name, c, None, "a numeric column", str(s.dtype)))
+        if num_probs:
+            return None, num_probs
+        raw, num_probs = _bad_cells(name, raw, list(wanted))
+    df = pd.DataFrame({c: raw[fcol[c]].to_numpy(dtype=np.float64, copy=True) for c in CANONICAL_COLUMNS})
+    if cmap is not None:
+        for c, s in cmap.scale.items():
+            df[c] = df[c] * s
+    if num_probs:
+        return None, num_probs
+    return df, check_signals(df, rig, reference, name)
+
+
+def _one_line(e: BaseException) -> str:
+    s = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {s[0] if s else ''}"
+
+
+def read_log(path: str | Path, rig: Rig | None = None, reference: str | None = None) -> pd.DataFrame:
+    """Read one trial log (CSV or Parquet) into the canonical channels, checked.
+
+    Parameters
+    ----------
+    path : the log file (``.csv`` / ``.parquet``, or as forced by ``rig.format``).
+    rig : optional :class:`~selfsense.io.rig.Rig`; enables the sample-rate check against
+        ``sample_rate_hz``, the ADC range, and the ``channel_map`` column/unit mapping.
+    reference : ``'displacement'`` / ``'force'`` / ``None``: which reference channel must be NaN-free.
+
+    Returns a DataFrame with float64 columns ``t, u_cmd, v_shunt, laser, load_cell, relay`` (raw DAQ volts,
+    time in s). Raises :class:`ContractError` listing every problem found.
+    """
+    df, probs = check_log(path, rig, reference)
+    if probs or df is None:
+        raise ContractError(probs, str(path))
+    return df

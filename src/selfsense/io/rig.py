@@ -1,0 +1,303 @@
+"""``rig.yaml``: how the signals of a dataset were acquired and scaled.
+
+Schema (DATA_FORMAT.md, every number SI; unknown keys are errors so that typos never pass silently)::
+
+    dataset: tweezer_sim               # must equal the folder name
+    sample_rate_hz: 1000.0             # nominal DAQ rate [Hz]
+    shunt_resistance_ohm: 1000.0       # R of thesis eq. (57) [ohm]
+    amplifier_gain: 15.0               # V_c = amplifier_gain * u_cmd (thesis eq. 56) [V/V]
+    inamp_gain: 10.0                   # column v_shunt = inamp_gain * V_s [V/V]
+    n_actuators: 5                     # actuators electrically in parallel
+    reference: {laser_m_per_v: 2.0e-3, load_cell_n_per_v: 0.1}
+    actuator_catalog: {free_displacement_m: 10.0e-6, blocked_force_n: 240.0,
+                       stiffness_n_per_m: 24.0e6, capacitance_f: 0.25e-6, max_voltage_v: 150.0}
+    tip_free_displacement_m: 6.3e-3
+
+Optional keys (for DAQ logs that are not in the canonical layout, see docs/data_format.md)::
+
+    format: auto | csv | parquet       # how to read the trial logs (auto: by file extension)
+    adc_range_v: 10.0                  # +-full scale of the DAQ inputs, used for the saturation check
+    channel_map:
+      columns: {t: Time_ms, v_shunt: AI1}   # canonical name -> the file's column name
+      scale:   {t: 1.0e-3}                  # canonical = scale * file column (e.g. ms -> s, mV -> V)
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import ContractError, Problem
+
+__all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "parse_rig",
+           "CANONICAL_COLUMNS", "RIG_FILE"]
+
+RIG_FILE = "rig.yaml"
+#: raw DAQ channels of a trial log, in canonical order (DATA_FORMAT.md)
+CANONICAL_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "v_shunt", "laser", "load_cell", "relay")
+FORMATS = ("auto", "csv", "parquet")
+
+
+@dataclass(frozen=True)
+class Reference:
+    laser_m_per_v: float      #: column laser [V] -> displacement of ONE arm [m]; sign = mounting direction
+    load_cell_n_per_v: float  #: column load_cell [V] -> tip force [N]
+
+
+@dataclass(frozen=True)
+class ActuatorCatalog:
+    """Data-sheet values of ONE actuator."""
+    free_displacement_m: float
+    blocked_force_n: float
+    stiffness_n_per_m: float
+    capacitance_f: float
+    max_voltage_v: float
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    """Map from canonical channel names to a foreign log's columns, and scale factors.
+
+    ``canonical = scale[name] * file[columns.get(name, name)]``.
+    """
+    columns: dict[str, str] = field(default_factory=dict)
+    scale: dict[str, float] = field(default_factory=dict)
+
+    def file_column(self, name: str) -> str:
+        return self.columns.get(name, name)
+
+
+@dataclass(frozen=True)
+class Rig:
+    dataset: str
+    sample_rate_hz: float
+    shunt_resistance_ohm: float
+    amplifier_gain: float
+    inamp_gain: float
+    n_actuators: int
+    reference: Reference
+    actuator_catalog: ActuatorCatalog
+    tip_free_displacement_m: float
+    format: str = "auto"
+    adc_range_v: float = 10.0
+    channel_map: ChannelMap | None = None
+
+    @property
+    def dt(self) -> float:
+        """Nominal sample period [s]."""
+        return 1.0 / self.sample_rate_hz
+
+
+# --- schema: key -> (type, lo, hi, positive) ------------------------------------------------------
+# lo/hi are plausibility bounds on the value (or on |value| when positive is False and the sign is free)
+_NUM = "number"
+_INT = "integer"
+_STR = "string"
+_REQUIRED: dict[str, Any] = {
+    "dataset": (_STR,),
+    "sample_rate_hz": (_NUM, 1.0, 1e6, True),
+    "shunt_resistance_ohm": (_NUM, 1.0, 1e7, True),
+    "amplifier_gain": (_NUM, 0.1, 1e4, True),
+    "inamp_gain": (_NUM, 0.1, 1e4, True),
+    "n_actuators": (_INT, 1, 1000, True),
+    "reference": {
+        "laser_m_per_v": (_NUM, 1e-9, 1.0, False),
+        "load_cell_n_per_v": (_NUM, 1e-6, 1e4, False),
+    },
+    "actuator_catalog": {
+        "free_displacement_m": (_NUM, 1e-9, 1e-2, True),
+        "blocked_force_n": (_NUM, 1e-3, 1e5, True),
+        "stiffness_n_per_m": (_NUM, 1e3, 1e10, True),
+        "capacitance_f": (_NUM, 1e-9, 1e-3, True),
+        "max_voltage_v": (_NUM, 1.0, 1e4, True),
+    },
+    "tip_free_displacement_m": (_NUM, 1e-7, 0.1, True),
+}
+_OPTIONAL = {"format", "adc_range_v", "channel_map"}
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that reads ``1e-3`` (no dot) as a float, as YAML 1.2 does."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+][0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_value(key: str, v: Any, spec: tuple, probs: list[Problem]) -> Any:
+    kind = spec[0]
+    if kind == _STR:
+        if not isinstance(v, str) or not v:
+            probs.append(Problem(RIG_FILE, key, None, "a non-empty string", v))
+            return None
+        return v
+    if kind == _INT:
+        if not (isinstance(v, int) and not isinstance(v, bool)):
+            if _is_number(v) and float(v).is_integer():
+                v = int(v)
+            else:
+                probs.append(Problem(RIG_FILE, key, None, "an integer", v))
+                return None
+    elif not _is_number(v):
+        probs.append(Problem(RIG_FILE, key, None, "a number", v))
+        return None
+    lo, hi, positive = spec[1], spec[2], spec[3]
+    x = float(v)
+    if not math.isfinite(x):
+        probs.append(Problem(RIG_FILE, key, None, "a finite number", v))
+        return None
+    if positive and x <= 0:
+        probs.append(Problem(RIG_FILE, key, None, "a value > 0" if kind == _NUM else f"an integer >= {lo}", v))
+        return None
+    if not positive and x == 0:
+        probs.append(Problem(RIG_FILE, key, None, "a non-zero value", v))
+        return None
+    if not (lo <= abs(x) <= hi):
+        probs.append(Problem(RIG_FILE, key, None,
+                             f"a plausible value, {'|value|' if not positive else 'value'} in [{lo:g}, {hi:g}]", v))
+        return None
+    return int(v) if kind == _INT else x
+
+
+def _check_mapping(prefix: str, d: Any, schema: dict, optional: set[str], probs: list[Problem]) -> dict:
+    out: dict[str, Any] = {}
+    if not isinstance(d, dict):
+        probs.append(Problem(RIG_FILE, prefix or None, None, "a mapping of keys", type(d).__name__))
+        return out
+    for k in d:
+        if k not in schema and k not in optional:
+            import difflib
+            close = difflib.get_close_matches(str(k), list(schema) + sorted(optional), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            probs.append(Problem(RIG_FILE, f"{prefix}{k}", None, "no unknown keys" + hint, "unknown key"))
+    for k, spec in schema.items():
+        key = f"{prefix}{k}"
+        if k not in d:
+            probs.append(Problem(RIG_FILE, key, None, "this required key", "missing"))
+            continue
+        if isinstance(spec, dict):
+            out[k] = _check_mapping(key + ".", d[k], spec, set(), probs)
+        else:
+            out[k] = _check_value(key, d[k], spec, probs)
+    return out
+
+
+def _check_channel_map(d: Any, probs: list[Problem]) -> ChannelMap | None:
+    if not isinstance(d, dict):
+        probs.append(Problem(RIG_FILE, "channel_map", None, "a mapping with 'columns' and/or 'scale'", d))
+        return None
+    for k in d:
+        if k not in ("columns", "scale"):
+            probs.append(Problem(RIG_FILE, f"channel_map.{k}", None, "only 'columns' and 'scale'", "unknown key"))
+    cols: dict[str, str] = {}
+    scale: dict[str, float] = {}
+    for sub in ("columns", "scale"):
+        m = d.get(sub, {}) or {}
+        if not isinstance(m, dict):
+            probs.append(Problem(RIG_FILE, f"channel_map.{sub}", None, "a mapping canonical name -> value", m))
+            continue
+        for name, val in m.items():
+            key = f"channel_map.{sub}.{name}"
+            if name not in CANONICAL_COLUMNS:
+                probs.append(Problem(RIG_FILE, key, None,
+                                     "a canonical channel name (" + ", ".join(CANONICAL_COLUMNS) + ")",
+                                     "unknown key"))
+                continue
+            if sub == "columns":
+                if not isinstance(val, str) or not val:
+                    probs.append(Problem(RIG_FILE, key, None, "a column name (string)", val))
+                else:
+                    cols[name] = val
+            else:
+                if not _is_number(val) or not math.isfinite(float(val)) or float(val) == 0:
+                    probs.append(Problem(RIG_FILE, key, None, "a finite non-zero scale factor", val))
+                elif name == "relay" and float(val) != 1.0:
+                    probs.append(Problem(RIG_FILE, key, None, "no scale on the 0/1 relay column", val))
+                elif name == "t" and float(val) < 0:
+                    probs.append(Problem(RIG_FILE, key, None, "a positive time scale", val))
+                else:
+                    scale[name] = float(val)
+    if len(set(cols.values())) != len(cols):
+        probs.append(Problem(RIG_FILE, "channel_map.columns", None, "distinct file columns", cols))
+    return ChannelMap(cols, scale)
+
+
+def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, list[Problem]]:
+    """Check a parsed ``rig.yaml`` mapping; return ``(Rig or None, problems)``. Never raises on bad data."""
+    probs: list[Problem] = []
+    if not isinstance(data, dict):
+        probs.append(Problem(RIG_FILE, None, None, "a YAML mapping of keys", type(data).__name__))
+        return None, probs
+    vals = _check_mapping("", data, _REQUIRED, _OPTIONAL, probs)
+    fmt = data.get("format", "auto")
+    if fmt not in FORMATS:
+        probs.append(Problem(RIG_FILE, "format", None, " or ".join(repr(f) for f in FORMATS), fmt))
+    adc = data.get("adc_range_v", 10.0)
+    adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
+    cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None
+    if dataset_name is not None and isinstance(vals.get("dataset"), str) and vals["dataset"] != dataset_name:
+        probs.append(Problem(RIG_FILE, "dataset", None, f"the folder name {dataset_name!r}", vals["dataset"]))
+    if probs:
+        return None, probs
+    rig = Rig(
+        dataset=vals["dataset"],
+        sample_rate_hz=vals["sample_rate_hz"],
+        shunt_resistance_ohm=vals["shunt_resistance_ohm"],
+        amplifier_gain=vals["amplifier_gain"],
+        inamp_gain=vals["inamp_gain"],
+        n_actuators=vals["n_actuators"],
+        reference=Reference(**vals["reference"]),
+        actuator_catalog=ActuatorCatalog(**vals["actuator_catalog"]),
+        tip_free_displacement_m=vals["tip_free_displacement_m"],
+        format=fmt,
+        adc_range_v=adc,
+        channel_map=cmap,
+    )
+    return rig, probs
+
+
+_MAX_RIG_BYTES = 1 << 20
+
+
+def check_rig(dataset_dir: str | Path) -> tuple[Rig | None, list[Problem]]:
+    """Read and check ``<dataset_dir>/rig.yaml``; return ``(Rig or None, problems)``."""
+    d = Path(dataset_dir)
+    p = d / RIG_FILE
+    if not p.is_file():
+        return None, [Problem(RIG_FILE, None, None, "a rig.yaml file in the dataset folder", "no such file")]
+    if p.stat().st_size > _MAX_RIG_BYTES:
+        return None, [Problem(RIG_FILE, None, None, f"a small YAML file (< {_MAX_RIG_BYTES} bytes)",
+                              f"{p.stat().st_size} bytes")]
+    try:
+        text = p.read_text(encoding="utf-8")
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 (SafeLoader subclass)
+    except UnicodeDecodeError as e:
+        return None, [Problem(RIG_FILE, None, None, "UTF-8 text", f"undecodable byte at {e.start}")]
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "unknown position"
+        return None, [Problem(RIG_FILE, None, None, "valid YAML", f"syntax error at {where}")]
+    return parse_rig(data, d.resolve().name)
+
+
+def load_rig(dataset_dir: str | Path) -> Rig:
+    """Load ``<dataset_dir>/rig.yaml`` as a :class:`Rig`; raise :class:`ContractError` listing all problems."""
+    rig, probs = check_rig(dataset_dir)
+    if probs or rig is None:
+        raise ContractError(probs, str(dataset_dir))
+    return rig
