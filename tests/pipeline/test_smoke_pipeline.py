@@ -1,0 +1,95 @@
+"""Smoke run of the real Snakefile on data/raw/sample, twice, with bit-identical outputs (reproducibility)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "data" / "raw" / "sample"
+
+
+def _run_pipeline(workdir: Path) -> None:
+    workdir.mkdir(parents=True, exist_ok=True)
+    cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
+    cfg["datasets"] = ["sample"]
+    cfg["raw_dir"] = str(ROOT / "data" / "raw")
+    cfg["results_dir"] = "results"
+    (workdir / "config.yaml").write_text(yaml.safe_dump(cfg))
+    env = dict(os.environ, MPLBACKEND="Agg")
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2", "--snakefile", str(ROOT / "Snakefile"),
+         "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"), "--quiet", "all"],
+        capture_output=True, text=True, env=env, timeout=900,
+    )
+    assert proc.returncode == 0, f"snakemake failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+
+
+def _hashes(results: Path) -> dict[str, str]:
+    out = {}
+    for p in sorted(results.rglob("*")):
+        if p.is_file() and "benchmarks" not in p.parts and "logs" not in p.parts:
+            out[str(p.relative_to(results))] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    if not SAMPLE.exists():
+        pytest.fail("data/raw/sample is missing: the bundled sample dataset must be committed")
+    raw_before = {str(p): p.stat().st_mtime_ns for p in SAMPLE.rglob("*")}
+    a = tmp_path_factory.mktemp("run_a")
+    b = tmp_path_factory.mktemp("run_b")
+    _run_pipeline(a)
+    _run_pipeline(b)
+    raw_after = {str(p): p.stat().st_mtime_ns for p in SAMPLE.rglob("*")}
+    assert raw_before == raw_after, "data/raw was modified by the pipeline"
+    return a / "results" / "sample", b / "results" / "sample"
+
+
+def test_contract_outputs_exist(two_runs):
+    res, _ = two_runs
+    t3 = pd.read_csv(res / "tables" / "table3.csv")
+    assert list(t3["measurement"]) == ["displacement", "force"]
+    for col in ("mean_abs_error", "percent_of_range", "n_trials"):
+        assert col in t3.columns
+    assert (t3["n_trials"] > 0).all()
+    pt = pd.read_csv(res / "tables" / "per_trial.csv")
+    assert {"trial", "measurement", "mean_abs_error", "percent_of_range", "role"} <= set(pt.columns)
+    for p in (res / "estimates").glob("*.parquet"):
+        df = pd.read_parquet(p)
+        assert list(df.columns) == ["t", "dx_hat", "f_hat", "dx_ref", "f_ref"]
+        assert df[["dx_hat", "f_hat"]].notna().all().all(), f"NaN reached estimate {p.name}"
+    assert (res / "report.html").stat().st_size > 10_000
+    model = json.loads((res / "model" / "sensing.json").read_text())
+    assert {"A1", "A2", "A3"} <= set(model["coef"])
+    for stem in ("fig17_voltage_charge", "fig21_h_calibration", "fig25-30_displacement_trials", "fig31-36_force_trials"):
+        assert (res / "figures" / f"{stem}.png").exists() and (res / "figures" / f"{stem}.pdf").exists()
+
+
+def test_estimates_are_physical(two_runs):
+    """Estimates lie in the physical range after limiting, and the sample's validation error is bounded."""
+    res, _ = two_runs
+    t3 = pd.read_csv(res / "tables" / "table3.csv").set_index("measurement")
+    # a loose sanity bound: an estimator that had lost the signal would be at ~50-100 % of range
+    assert t3.loc["displacement", "percent_of_range"] < 30
+    assert t3.loc["force", "percent_of_range"] < 40
+    for p in (res / "estimates").glob("*.parquet"):
+        df = pd.read_parquet(p)
+        assert (df["dx_hat"] >= 0).all() and (df["f_hat"] >= 0).all()
+
+
+def test_bit_identical_reruns(two_runs):
+    a, b = two_runs
+    ha, hb = _hashes(a), _hashes(b)
+    assert ha.keys() == hb.keys()
+    diff = [k for k in ha if ha[k] != hb[k]]
+    assert not diff, f"outputs differ between two identical runs: {diff}"
