@@ -249,15 +249,17 @@ class RIModel:
         return Phi
 
     def fit(self, x, y, state: RIState | None = None, constrain_diagonal: bool = True,
-            ridge: float = 0.0, x_history=None) -> "RIModel":
+            ridge: float = 0.0, smooth: float = 0.0, x_history=None) -> "RIModel":
         """Identify F (eq. 15) and G (eq. 16) by linear least squares from arbitrary one-sided data.
 
         Every sample lies on a branch fixed by its reversal history (M, m); eqs. (10)/(11) are linear in
         (b, p), so all branches are fitted at once: y ~= Phi(x) @ [b; p] (see ``regressor``). With
         ``constrain_diagonal`` p = T c with G(M, M) = 0 (continuous output at reversals).
         ``x_history`` (optional) is an input history applied before x (e.g. the preconditioning cycle of a
-        magnet); it sets the memory but its outputs are not fitted. ``ridge`` adds Tikhonov regularisation
-        on the column-normalised coefficients (0 = plain least squares, minimum-norm if rank deficient).
+        magnet); it sets the memory but its outputs are not fitted. ``smooth`` weights the regularisation of
+        ``smoothness_rows`` (Masing-like G plus a little bending energy; relative to the mean squared residual,
+        with u in [0, 1]); ``ridge`` adds Tikhonov regularisation on the column-normalised coefficients.
+        ``smooth = ridge = 0`` (default) is plain least squares as in the paper (minimum-norm if rank deficient).
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -271,12 +273,14 @@ class RIModel:
         if x_history is not None:
             state = self.state_after(x_history, state)
         Phi = self.regressor(x, state)
-        coef = solve_ls(Phi, y, constrain_diagonal=constrain_diagonal, ridge=ridge)
+        u_max = float(max(np.max(self.scale_input(x)), state.M_max if state is not None else 0.0, 1e-12))
+        coef = solve_ls(Phi, y, constrain_diagonal=constrain_diagonal, ridge=ridge, smooth=smooth, u_max=u_max)
         self.b, self.p = coef[:5].copy(), coef[5:].copy()
         resid = y - Phi @ coef
         rng = float(np.ptp(y)) if y.size else 1.0
         self.fit_info = {"method": "regression over all reversal branches (eqs. 10-11 linear in b, p)",
                          "n_samples": int(y.size), "constrain_diagonal": bool(constrain_diagonal),
+                         "smooth": float(smooth), "ridge": float(ridge),
                          "rms_pct": float(100 * np.sqrt(np.mean(resid ** 2)) / rng) if rng > 0 else 0.0,
                          "max_pct": float(100 * np.max(np.abs(resid)) / rng) if rng > 0 else 0.0}
         return self
@@ -321,23 +325,73 @@ def _gvec(M: float, m: float) -> np.ndarray:
     return out
 
 
-def solve_ls(Phi: np.ndarray, y: np.ndarray, constrain_diagonal: bool = True, ridge: float = 0.0) -> np.ndarray:
-    """Least squares for [b; p] (20) with column normalisation; optional G(M, M) = 0 constraint and ridge."""
+def smoothness_rows(u_max: float = 1.0, n_grid: int = 21, thin_plate: float = 1e-3) -> np.ndarray:
+    """Rows R (n x 20) of the regularisation used by ``fit(..., smooth=...)``; |R c|^2 is the mean over the triangle
+    0 <= m <= M <= u_max of
+
+    * (G_M + G_m)^2 - zero for a Masing / Prandtl-Ishlinskii-like surface G = g(M - m): the loop between two extrema
+      is shaped by their distance only;
+    * ``thin_plate`` * (G_MM^2 + 2 G_Mm^2 + G_mm^2) - thin-plate bending energy of G;
+    * the mean of F''^2 over [0, u_max] (F only seen at a single M_max is then extrapolated as a straight line).
+
+    It fixes the parts of F and G that the data do not determine (e.g. the interior of the (M, m) triangle when only a
+    major loop was measured). It is not in the RI paper, which identifies F and G from a full grid of reversal data.
+    """
+    g = np.linspace(0.0, u_max, n_grid)
+    MM, mm = np.meshgrid(g, g, indexing="ij")
+    sel = mm <= MM
+    M, m = MM[sel], mm[sel]
+    w = 1.0 / np.sqrt(M.size)
+
+    def d(a, c, da, dc):  # derivative d^(da+dc) / dM^da dm^dc of M^a m^c
+        if a < da or c < dc:
+            return np.zeros_like(M)
+        ka = float(np.prod(np.arange(a, a - da, -1))) if da else 1.0
+        kc = float(np.prod(np.arange(c, c - dc, -1))) if dc else 1.0
+        return ka * kc * M ** (a - da) * m ** (c - dc)
+
+    rows = []
+    R = np.zeros((M.size, 20))
+    for i, (a, c) in enumerate(G_MONOMIALS):
+        R[:, 5 + i] = w * (d(a, c, 1, 0) + d(a, c, 0, 1))
+    rows.append(R)
+    for da, dc, f in ((2, 0, 1.0), (1, 1, 2.0), (0, 2, 1.0)):
+        R = np.zeros((M.size, 20))
+        for i, (a, c) in enumerate(G_MONOMIALS):
+            R[:, 5 + i] = np.sqrt(thin_plate * f) * w * d(a, c, da, dc)
+        rows.append(R)
+    RF = np.zeros((n_grid, 20))
+    for i in range(2, 5):
+        RF[:, i] = i * (i - 1) * g ** (i - 2) / np.sqrt(n_grid)
+    rows.append(RF)
+    return np.vstack(rows)
+
+
+def solve_ls(Phi: np.ndarray, y: np.ndarray, constrain_diagonal: bool = True, ridge: float = 0.0,
+             smooth: float = 0.0, u_max: float = 1.0) -> np.ndarray:
+    """Least squares for [b; p] (20) with column normalisation.
+
+    Minimises  mean((Phi c - y)^2) + smooth * (bending energy of G and F, ``smoothness_rows``) + ridge * |c_n|^2
+    (c_n: column-normalised coefficients), optionally with p restricted to G(M, M) = 0.
+    """
     if constrain_diagonal:
         T = np.zeros((20, 15))
         T[:5, :5] = np.eye(5)
         T[5:, 5:] = diagonal_constraint_basis()
     else:
         T = np.eye(20)
-    A = Phi @ T
+    N = max(Phi.shape[0], 1)
+    A = Phi @ T / np.sqrt(N)
+    yy = np.asarray(y, float) / np.sqrt(N)
+    if smooth > 0:
+        A = np.vstack([A, np.sqrt(smooth) * (smoothness_rows(u_max) @ T)])
+        yy = np.concatenate([yy, np.zeros(A.shape[0] - yy.size)])
     norms = np.sqrt(np.sum(A ** 2, axis=0))
     keep = norms > 0
     As = A[:, keep] / norms[keep]
     if ridge > 0:
         As = np.vstack([As, np.sqrt(ridge) * np.eye(As.shape[1])])
-        yy = np.concatenate([y, np.zeros(As.shape[1])])
-    else:
-        yy = y
+        yy = np.concatenate([yy, np.zeros(As.shape[1])])
     sol, *_ = np.linalg.lstsq(As, yy, rcond=1e-13)
     c = np.zeros(A.shape[1])
     c[keep] = sol / norms[keep]

