@@ -30,6 +30,7 @@ __all__ = [
     "pzt_force",
     "actuator_voltage",
     "tip_matrix",
+    "tip_matrix_closed_form",
     "a_coefficients",
     "approximation_terms",
     "S_from_measurements",
