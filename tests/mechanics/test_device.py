@@ -52,3 +52,19 @@ def test_from_targets_hits_targets():
     assert float(r["dx_tip_free"]) == pytest.approx(7e-3, rel=1e-9)
     assert float(r["f_tip_block"]) == pytest.approx(0.1, rel=1e-9)
     assert float(r["x_pzt_free"]) == pytest.approx(7e-6, rel=1e-9)
+
+
+def test_array_environment_matches_scalar_solves():
+    m = default_tweezer_mechanics()
+    Vp = np.array([150.0, 150.0, 100.0, 150.0])
+    ke = np.array([0.0, 50.0, np.inf, 1e3])
+    gap = np.array([0.0, 1e-3, 2e-3, 9e-3])
+    r = m.solve(Vp, k_env=ke, gap=gap)
+    for i in range(4):
+        ri = m.solve(Vp[i], k_env=ke[i], gap=gap[i])
+        for key in ("x_pzt", "dx_tip", "f_tip", "q"):
+            assert r[key][i] == pytest.approx(float(ri[key]), rel=1e-12, abs=1e-18)
+    assert r["dx_tip"][2] == pytest.approx(2e-3)      # rigid object reached
+    assert r["f_tip"][3] == 0.0                        # gap 9 mm > free stroke 6.3 mm
+    with pytest.raises(ValueError, match="k_env"):
+        m.solve(150.0, k_env=-1.0)

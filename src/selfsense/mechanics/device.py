@@ -115,7 +115,7 @@ class TweezerMechanics:
 
         ``k_env=0``: free tip; ``blocked=True``: dx_tip = 0; otherwise a linear spring of
         stiffness ``k_env`` [N/m] (``np.inf`` = rigid) engaged after a closing ``gap`` [m]:
-        ``f_tip = k_env * max(dx_tip - gap, 0)``. Returns arrays ``x_pzt`` [m per actuator],
+        ``f_tip = k_env * max(dx_tip - gap, 0)`` (k_env, gap may be arrays). Returns arrays ``x_pzt`` [m per actuator],
         ``dx_tip`` [m], ``f_tip`` [N], ``q`` [C total], ``F_in`` [N total PZT force].
         """
         return piezo.static_response(*self._p, Vp, k_env=k_env, gap=gap, blocked=blocked)

@@ -271,7 +271,8 @@ def static_response(S1, S2, S3, alpha, Cp, k, n_A, Vp, *, k_env=0.0, gap=0.0, bl
 
     Equations: ``n_A (alpha V_p - k x) = S1 x + S3 y`` (eqs. 21, 26, 44) and
     ``f_tip = -(S3 x + S2 y)``; environment ``f_tip = k_env * max(y - gap, 0)``
-    (``k_env=0``: free; ``blocked=True``: y = 0). ``x`` [m] stack elongation per actuator,
+    (``k_env=0``: free; ``blocked=True``: y = 0; ``k_env``/``gap`` may be arrays
+    broadcast against ``Vp``, ``k_env=np.inf`` = rigid object). ``x`` [m] stack elongation per actuator,
     ``y`` = dx_tip [m] closing, ``f_tip`` [N] pinch-positive, ``q`` [C] TOTAL charge
     ``n_A (alpha x + C_p V_p)``. Vectorised over ``Vp`` [V].
     """
@@ -282,24 +283,25 @@ def static_response(S1, S2, S3, alpha, Cp, k, n_A, Vp, *, k_env=0.0, gap=0.0, bl
         x = g / a11
         y = np.zeros_like(x)
     else:
-        # free solution
+        k_env = np.asarray(k_env, dtype=float)
+        gap = np.asarray(gap, dtype=float)
+        if np.any(k_env < 0):
+            raise ValueError("k_env must be >= 0 (np.inf = rigid object)")
         det_f = a11 * S2 - S3 * S3
         x_f = g * S2 / det_f
         y_f = -S3 * g / det_f
-        x, y = x_f, y_f
-        if k_env > 0 and np.isfinite(k_env):
-            a22 = S2 + k_env
-            det_c = a11 * a22 - S3 * S3
-            x_c = (g * a22 - S3 * k_env * gap) / det_c
-            y_c = (a11 * k_env * gap - S3 * g) / det_c
-            contact = y_f > gap
-            x = np.where(contact, x_c, x_f)
-            y = np.where(contact, y_c, y_f)
-        elif np.isinf(k_env):
-            contact = y_f > gap
-            x_c = (g - S3 * gap) / a11
-            x = np.where(contact, x_c, x_f)
-            y = np.where(contact, gap, y_f)
+        contact = (y_f > gap) & (k_env > 0)
+        rigid = np.isinf(k_env)
+        ke = np.where(rigid, 0.0, k_env)          # finite spring branch (rigid handled below)
+        a22 = S2 + ke
+        det_c = a11 * a22 - S3 * S3
+        x_c = (g * a22 - S3 * ke * gap) / det_c
+        y_c = (a11 * ke * gap - S3 * g) / det_c
+        x_r = (g - S3 * gap) / a11                # rigid object: dx_tip = gap
+        x_c = np.where(rigid, x_r, x_c)
+        y_c = np.where(rigid, gap, y_c)
+        x = np.where(contact, x_c, x_f)
+        y = np.where(contact, y_c, y_f)
     f_tip = -(S3 * x + S2 * y)
     q = n_A * (alpha * x + Cp * Vp)
     return dict(x_pzt=x, dx_tip=y, f_tip=f_tip, q=q, F_in=n_A * (alpha * Vp - k * x))
