@@ -48,7 +48,7 @@ __all__ = [
 
 H_MODES = ("thesis", "onsite")
 H_MODELS = ("modified_pi", "ri")
-REGRESSIONS = ("approx", "full")
+REGRESSIONS = ("auto", "approx", "full")
 
 
 class CalibrationError(ValueError):
@@ -78,7 +78,7 @@ class SensingConfig:
     n_creep: int = 4
     creep: bool = True
     solver: str = "CLARABEL"
-    regression: str = "approx"
+    regression: str = "auto"
     limit: bool = True
     dc_offset: bool = True
     dc_offset_force: bool = False
@@ -137,30 +137,75 @@ def h_target(V: np.ndarray, Q: np.ndarray, slope: float) -> np.ndarray:
     return np.asarray(V, dtype=float) - slope * np.asarray(Q, dtype=float)
 
 
+def loop_orientation(x: np.ndarray, y: np.ndarray) -> float:
+    """+1 if the (x, y) loops run counter-clockwise overall (shoelace signed area > 0), else -1."""
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    area = 0.5 * float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]))
+    return 1.0 if area >= 0 else -1.0
+
+
+class GaugedH:
+    """``H(Q) = sign * (G[Q] - c Q)``: an operator ``G`` fitted to ``sign * H + c Q``.
+
+    Play operators with non-negative weights (thesis eq. 32, constraints 68-75) only make counter-clockwise loops
+    with rising branches; a piezo's H(q) runs clockwise with increasing charge (paper Fig. 12) and, in the eq. (55)
+    convention, falls with q. Negating (``sign``) and adding a linear term ``c Q`` (a play operator of zero
+    threshold) is an exact reparametrisation that brings H into the operator's class; it is undone on evaluation.
+    """
+
+    def __init__(self, inner, sign: float = 1.0, c: float = 0.0):
+        self.inner, self.sign, self.c = inner, float(sign), float(c)
+
+    def __call__(self, Q):
+        Q = np.asarray(Q, dtype=float)
+        if type(self.inner).__name__ == "RIModel":
+            g = np.asarray(self.inner(np.maximum(Q, 0.0)), dtype=float)
+        else:
+            g = np.asarray(self.inner(Q), dtype=float)
+        return self.sign * (g - self.c * Q)
+
+    def to_dict(self) -> dict:
+        return {"sign": self.sign, "c": self.c, "inner": {"kind": type(self.inner).__name__, "params": self.inner.to_dict()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "GaugedH":
+        return cls(_h_from_dict(d["inner"]), d["sign"], d["c"])
+
+
 def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
     """Fit the H(q) operator of ``cfg.h_model`` to the calibration target; returns (model, report dict)."""
     t0 = time.perf_counter()
+    sign = loop_orientation(Q, y)
+    ys = sign * y
+    slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
+    c = 2.0 * max(0.0, -slope)
+    target = ys + c * Q
     if cfg.h_model == "modified_pi":
         from selfsense.hysteresis.identify import fit_modified_pi
 
-        model, rep = fit_modified_pi(
-            Q, y, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=cfg.n_creep, creep=cfg.creep,
+        inner, rep = fit_modified_pi(
+            Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=cfg.n_creep, creep=cfg.creep,
             solver=cfg.solver, fit_z0=cfg.fit_z0,
         )
         report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
     else:
         from selfsense.hysteresis.ri import RIModel
 
-        model = RIModel()
-        model.fit(np.maximum(Q, 0.0), y)
-        pred = model(np.maximum(Q, 0.0))
-        rng = float(np.ptp(y)) or 1.0
-        report = {
-            "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
-            "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
-            "solver": "lstsq",
-            "status": "optimal",
-        }
+        inner = RIModel()
+        inner.fit(np.maximum(Q, 0.0), target)
+        report = {"solver": "lstsq", "status": "optimal"}
+    model = GaugedH(inner, sign, c)
+    pred = model(Q)
+    rng = float(np.ptp(y)) or 1.0
+    report.update({
+        "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
+        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
+        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))),
+        "gauge_sign": sign,
+        "gauge_c": c,
+    })
+    report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
     report["seconds"] = time.perf_counter() - t0
     report["h_model"] = cfg.h_model
     return model, report
@@ -172,6 +217,8 @@ def _h_to_dict(model) -> dict:
 
 def _h_from_dict(d: Mapping[str, Any]):
     kind = d["kind"]
+    if kind == "GaugedH":
+        return GaugedH.from_dict(d["params"])
     if kind == "ModifiedPI":
         from selfsense.hysteresis.pi import ModifiedPI
 
@@ -180,7 +227,7 @@ def _h_from_dict(d: Mapping[str, Any]):
         from selfsense.hysteresis.ri import RIModel
 
         return RIModel.from_dict(d["params"])
-    raise ValueError(f"hysteresis model: unknown kind {kind!r}; expected 'ModifiedPI' or 'RIModel'")
+    raise ValueError(f"hysteresis model: unknown kind {kind!r}; expected 'GaugedH', 'ModifiedPI' or 'RIModel'")
 
 
 def _eval_h(model, Q: np.ndarray) -> np.ndarray:
@@ -319,13 +366,21 @@ class SelfSensingEstimator:
                 Xf.append(feats[ok]); yf.append(df["f_ref"].to_numpy()[m][ok])
             if row["tip"] == "free":
                 Xf.append(feats); yf.append(np.zeros(len(feats)))
-        if not Xd or not Xf:
-            raise CalibrationError("calibration trials give no displacement or no force equations for the regression")
+        if not (cal["reference"] == "displacement").any() or not (cal["reference"] == "force").any():
+            raise CalibrationError(
+                "trials.csv: the A-coefficient regression needs at least one calibration trial with reference "
+                "'displacement' and one with reference 'force' (thesis: free tip + laser, blocked tip + load cell)")
         Xd, yd = np.vstack(Xd), np.concatenate(yd)
         Xf, yf = np.vstack(Xf), np.concatenate(yf)
         names = ["Q", "V_p"] + self._extra_names
         cd = _lstsq(Xd, yd)
-        if cfg.regression == "approx":
+        regression = cfg.regression
+        if regression == "auto":
+            # thesis mode: eq. (52) is exact for the force row in the eq. (55) convention (free-tip V_p is linear in
+            # q); on-site mode: paper sec. IV-B regresses the four free terms (A1, A2, S2A1 + S3/n_A alpha, ...).
+            regression = "approx" if cfg.h_mode == "thesis" else "full"
+        self.fit_report_["regression_form"] = regression
+        if regression == "approx":
             # f = (A3 / n_A) (Q - n_A C_p V_p) + extra   (eq. 52): one physical coefficient A3
             zf = Xf[:, 0] - n_A * C_p * Xf[:, 1]
             Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
@@ -360,7 +415,7 @@ class SelfSensingEstimator:
         dx_all = np.concatenate([cal_trials[t]["dx_ref"].to_numpy() for t in cal.index])
         f_all = np.concatenate([cal_trials[t]["f_ref"].to_numpy() for t in cal.index])
         dx_max = float(np.nanmax(dx_all)) if np.isfinite(dx_all).any() else p["dx_tip_free"]
-        f_max = float(np.nanmax(f_all)) if np.isfinite(f_all).any() else np.inf
+        f_max = float(np.nanmax(f_all)) if np.isfinite(f_all).any() else 0.0
         self.ranges_ = {"dx": [0.0, max(dx_max, 0.0)], "f": [0.0, max(f_max, 0.0)]}
 
     # ------------------------------------------------------------------ helpers

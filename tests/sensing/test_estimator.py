@@ -1,0 +1,161 @@
+"""The estimator recovers tip displacement and force when the data follow its own model class.
+
+Data: the tweezer's exact static mechanics (thesis eq. 45, selfsense.mechanics) with a known play-type hysteresis
+H_true(q) (thesis eq. 32) in the electrical domain. Then thesis eq. (52) with the eq. (55) convention is exact
+(see the derivation in selfsense.sensing.estimator), so the only error left is the H(q) fit.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from selfsense.mechanics.device import default_tweezer_mechanics
+from selfsense.sensing import CalibrationError, SelfSensingEstimator, SensingConfig
+
+FS = 1000.0
+RIG = {
+    "n_actuators": 5,
+    "amplifier_gain": 15.0,
+    "actuator_catalog": {"capacitance_f": 0.25e-6, "blocked_force_n": 240.0, "max_voltage_v": 150.0,
+                         "free_displacement_m": 10e-6},
+    "tip_free_displacement_m": 6.3e-3,
+}
+
+
+def _play(x, r, y0=0.0):
+    y = np.empty_like(x)
+    prev = y0
+    for k, xk in enumerate(x):
+        prev = max(xk - r, min(xk + r, prev))
+        y[k] = prev
+    return y
+
+
+def _h_true(Q):
+    qmax = 4e-4
+    out = np.zeros_like(Q)
+    for i, w in enumerate([0.0, 30e3, 20e3, 12e3, 8e3]):
+        out += w * _play(Q, i * qmax / 6)
+    return out
+
+
+def _drive(kind, n):
+    t = np.arange(n) / FS
+    if kind == "sine":
+        amp = np.interp(t, [0, t[-1]], [150, 80])
+        v = amp * 0.5 * (1 - np.cos(2 * np.pi * 0.5 * t))
+    else:
+        v = np.clip(np.interp(t % 4, [0, 1, 2, 3, 4], [0, 150, 150, 40, 0]), 0, 150)
+    return t, v
+
+
+def _trial(kind, env, n=6000, relay_n=300):
+    dev = default_tweezer_mechanics()
+    t, vp = _drive(kind, n)
+    vp[:relay_n] = 0.0
+    if env == "free":
+        sol = dev.solve(vp)
+    elif env == "blocked":
+        sol = dev.solve(vp, blocked=True)
+    else:
+        sol = dev.solve(vp, k_env=200.0, gap=3e-3)
+    Q = np.asarray(sol["q"], float)
+    V = vp + _h_true(Q)
+    relay = np.zeros(n)
+    relay[:relay_n] = 1
+    return pd.DataFrame({"t": t, "V": V, "q": Q, "u_cmd": V / 15.0, "relay": relay,
+                         "dx_ref": np.asarray(sol["dx_tip"], float), "f_ref": np.asarray(sol["f_tip"], float),
+                         "V_c": V, "V_s": 0.0 * V})
+
+
+@pytest.fixture(scope="module")
+def data():
+    trials = {
+        "cal_free": _trial("sine", "free"),
+        "cal_block": _trial("sine", "blocked"),
+        "val_obj_d": _trial("mixed", "object"),
+        "val_free": _trial("mixed", "free"),
+        "val_block": _trial("mixed", "blocked"),
+    }
+    meta = pd.DataFrame([
+        ("cal_free", "calibration", "free", "displacement"),
+        ("cal_block", "calibration", "blocked", "force"),
+        ("val_obj_d", "validation", "object", "displacement"),
+        ("val_free", "validation", "free", "displacement"),
+        ("val_block", "validation", "blocked", "force"),
+    ], columns=["trial", "role", "tip", "reference"]).set_index("trial")
+    meta["signal"] = "sine"
+    return trials, meta
+
+
+def _pct(est, ref):
+    return float(np.mean(np.abs(est - ref)) / (ref.max() - ref.min()) * 100)
+
+
+@pytest.mark.parametrize("mode", ["thesis", "onsite"])
+def test_recovers_displacement_and_force_on_unseen_loads(data, mode):
+    trials, meta = data
+    cfg = SensingConfig(h_mode=mode, n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False)
+    est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    obj = est.estimate(trials["val_obj_d"])
+    blk = est.estimate(trials["val_block"])
+    ref = trials["val_obj_d"]
+    assert _pct(obj["dx_hat"].to_numpy(), ref["dx_ref"].to_numpy()) < 3.0
+    # force on a contact trial: zero before contact, then the object's reaction
+    assert _pct(obj["f_hat"].to_numpy(), ref["f_ref"].to_numpy()) < 5.0
+    assert _pct(blk["f_hat"].to_numpy(), trials["val_block"]["f_ref"].to_numpy()) < 5.0
+
+
+def test_physical_coefficients_match_eq_47_48_53(data):
+    """With a perfect H the regressed A1 agrees with the mechanics' closed form up to the eq. (55) convention."""
+    trials, meta = data
+    cfg = SensingConfig(n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False)
+    est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    dev = default_tweezer_mechanics()
+    M = dev.tip_matrix("contract")
+    Cp_cat = RIG["actuator_catalog"]["capacitance_f"]
+    # force row: f = M11 (V_p_est - Q/(n Cp_cat))  =>  A3 = -M11 / Cp_cat  (derivation in the module docstring)
+    assert est.coef_["A3"] == pytest.approx(-M[1, 1] / Cp_cat, rel=0.05)
+    # displacement row: dx = (M00 - M01 M10/M11 - M01/(n Cp_cat)) Q + M01 V_p_est
+    assert est.coef_["A2"] == pytest.approx(M[0, 1], rel=0.05)
+
+
+def test_validation_trials_never_used_for_fitting(data):
+    trials, meta = data
+    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=0, creep=False)
+    a = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    poisoned = dict(trials)
+    for t in ("val_obj_d", "val_free", "val_block"):
+        bad = trials[t].copy()
+        bad["dx_ref"] = 1.0
+        bad["f_ref"] = -5.0
+        poisoned[t] = bad
+    b = SelfSensingEstimator(config=cfg, rig=RIG).fit(poisoned, meta)
+    assert a.coef_ == b.coef_
+
+
+def test_json_round_trip_gives_identical_estimates(data):
+    trials, meta = data
+    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=2, creep=True)
+    a = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    import json
+
+    b = SelfSensingEstimator.from_dict(json.loads(json.dumps(a.to_dict())), RIG)
+    ea, eb = a.estimate(trials["val_obj_d"]), b.estimate(trials["val_obj_d"])
+    np.testing.assert_array_equal(ea.to_numpy(), eb.to_numpy())
+
+
+def test_missing_roles_give_clear_errors(data):
+    trials, meta = data
+    cfg = SensingConfig(n_play=4, n_sup=2, n_creep=0, creep=False)
+    m = meta.copy()
+    m.loc["cal_free", "tip"] = "object"
+    with pytest.raises(CalibrationError, match="no calibration trial with tip 'free'"):
+        SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, m)
+    m = meta.copy()
+    m.loc["cal_block", "reference"] = "displacement"
+    with pytest.raises(CalibrationError, match="reference 'force'"):
+        SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, m)
+    with pytest.raises(ValueError, match="h_mode"):
+        SensingConfig(h_mode="magic")
