@@ -207,7 +207,8 @@ def abg_filter_kernel(z, dt, alpha, beta, gamma):
     """alpha-beta-gamma tracking filter (position, velocity, acceleration estimates).
 
     Used as in 002_7d89b7147aad52e4.txt Sect. 4.3 to estimate x1', x1'' from measured x1.
-    Gains in the standard form: x += a r, v += b r / dt, acc += 2 g r / dt^2 (r = innovation).
+    Gains in the form x += alpha r, v += beta r / dt, acc += gamma r / (2 dt^2) (r = innovation); with
+    the paper gains this form is stable (the 2 gamma / dt^2 form is not: gamma > 4 alpha beta / (2 - alpha)).
     """
     n = z.shape[0]
     x = np.empty(n)
@@ -224,7 +225,7 @@ def abg_filter_kernel(z, dt, alpha, beta, gamma):
         r = z[k] - xk
         xk += alpha * r
         vk += beta * r / dt
-        ak += 2.0 * gamma * r / (dt * dt)
+        ak += gamma * r / (2.0 * dt * dt)
         x[k] = xk
         v[k] = vk
         a[k] = ak
@@ -251,3 +252,28 @@ def bouc_wen_kernel(u, d, alpha, beta, gamma, c2, n_sub, h0, u0):
         up = u[k]
         out[k] = d * up + c2 * d * up * up - h
     return out, h
+
+
+@njit(cache=True)
+def dss_kernel(Ad, Bd, C, D, u, x0):
+    """Discrete state space x[k+1] = Ad x[k] + Bd u[k], y[k] = C x[k] + D u[k] (single input/output).
+
+    Returns (y, x_end)."""
+    n = u.shape[0]
+    ns = Ad.shape[0]
+    y = np.empty(n)
+    x = x0.copy()
+    xn = np.empty(ns)
+    for k in range(n):
+        acc = D * u[k]
+        for i in range(ns):
+            acc += C[i] * x[i]
+        y[k] = acc
+        for i in range(ns):
+            s = Bd[i] * u[k]
+            for j in range(ns):
+                s += Ad[i, j] * x[j]
+            xn[i] = s
+        for i in range(ns):
+            x[i] = xn[i]
+    return y, x
