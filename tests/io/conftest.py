@@ -110,6 +110,15 @@ def make_dataset(root: Path, name: str = "ds", rig: dict | None = None, trials=N
     return d
 
 
+@pytest.fixture(scope="session")
+def pristine(tmp_path_factory) -> Path:
+    """The valid dataset, written once per session (copy it before mutating: see ``dataset``)."""
+    return make_dataset(tmp_path_factory.mktemp("pristine"))
+
+
 @pytest.fixture
-def dataset(tmp_path) -> Path:
-    return make_dataset(tmp_path)
+def dataset(tmp_path, pristine) -> Path:
+    """A fresh copy of the valid dataset ``<tmp>/ds`` that a test may mutate."""
+    import shutil
+
+    return Path(shutil.copytree(pristine, tmp_path / "ds"))

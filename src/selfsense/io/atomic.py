@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["RawDataWriteError", "assert_not_in_raw", "atomic_write", "atomic_write_bytes", "atomic_write_text",
-           "write_parquet_atomic", "write_json_atomic", "dumps_json"]
+           "write_parquet_atomic", "write_json_atomic", "dumps_json", "write_text_atomic", "write_bytes_atomic",
+           "parquet_bytes"]
 
 
 class RawDataWriteError(PermissionError):
@@ -66,6 +67,16 @@ def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8
     with atomic_write(path, "w", encoding=encoding) as fh:
         fh.write(text)
     return Path(path)
+
+
+def write_text_atomic(text: str, path: str | os.PathLike, encoding: str = "utf-8") -> Path:
+    """Same as :func:`atomic_write_text` with the payload first (like :func:`write_json_atomic`)."""
+    return atomic_write_text(path, text, encoding)
+
+
+def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
+    """Same as :func:`atomic_write_bytes` with the payload first."""
+    return atomic_write_bytes(path, data)
 
 
 def parquet_bytes(df: pd.DataFrame) -> bytes:

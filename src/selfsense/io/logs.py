@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import csv
 import math
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -297,18 +299,26 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         probs = column_problems(name, header, wanted)
         if probs:
             return None, probs
+        # the header is exactly the canonical set here, so no usecols; ragged rows are errors, not data
+        opts = dict(engine="c", encoding="utf-8-sig", skipinitialspace=True, index_col=False)
+        num_probs: list[Problem] = []
         try:
-            raw = pd.read_csv(path, usecols=list(wanted), dtype="float64", engine="c", encoding="utf-8-sig",
-                              skipinitialspace=True)
-            num_probs: list[Problem] = []
-        except (ValueError, TypeError):
-            try:
-                raw = pd.read_csv(path, usecols=list(wanted), dtype=object, engine="c", encoding="utf-8-sig",
-                                  keep_default_na=False, skipinitialspace=True)
-            except Exception as e:  # noqa: BLE001
-                return None, [Problem(name, None, None, "a well-formed CSV", _one_line(e))]
-            raw, num_probs = _bad_cells(name, raw, list(wanted))
-        except Exception as e:  # noqa: BLE001 - ParserError, UnicodeDecodeError, ...
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", pd.errors.ParserWarning)
+                try:
+                    raw = pd.read_csv(path, dtype="float64", **opts)
+                except (pd.errors.ParserError, pd.errors.ParserWarning):
+                    raise
+                except (ValueError, TypeError):  # a non-numeric cell somewhere: find it
+                    raw = pd.read_csv(path, dtype=object, keep_default_na=False, **opts)
+                    raw, num_probs = _bad_cells(name, raw, list(wanted))
+        except (pd.errors.ParserError, pd.errors.ParserWarning) as e:
+            bad = _first_ragged_row(path, len(header))
+            if bad is not None:
+                return None, [Problem(name, None, bad[0], f"a well-formed CSV row of {len(header)} cells",
+                                      f"{bad[1]} cells")]
+            return None, [Problem(name, None, None, "a well-formed CSV", _one_line(e))]
+        except Exception as e:  # noqa: BLE001 - UnicodeDecodeError, ...
             return None, [Problem(name, None, None, "a well-formed CSV", _one_line(e))]
     else:
         pf, names, probs = _parquet_header(name, path, size)
@@ -341,6 +351,17 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
     if num_probs:
         return None, num_probs
     return df, check_signals(df, rig, reference, name)
+
+
+def _first_ragged_row(path: Path, ncols: int) -> tuple[int, int] | None:
+    """(1-based data row, number of cells) of the first CSV row whose cell count differs from the header."""
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
+        rd = csv.reader(fh)
+        next(rd, None)
+        for i, r in enumerate(rd, start=1):
+            if r and len(r) != ncols:
+                return i, len(r)
+    return None
 
 
 def _one_line(e: BaseException) -> str:

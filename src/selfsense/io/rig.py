@@ -246,7 +246,7 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
     vals = _check_mapping("", data, _REQUIRED, _OPTIONAL, probs)
     fmt = data.get("format", "auto")
     if fmt not in FORMATS:
-        probs.append(Problem(RIG_FILE, "format", None, " or ".join(repr(f) for f in FORMATS), fmt))
+        probs.append(Problem(RIG_FILE, "format", None, "'auto', 'csv' or 'parquet'", fmt))
     adc = data.get("adc_range_v", 10.0)
     adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
     cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None

@@ -45,14 +45,15 @@ def column_problems(file: str, found: list[str], required: tuple[str, ...]) -> l
         seen.add(c)
     missing = [c for c in required if c not in seen]
     extra = [c for c in found if c not in required]
+    pair = len(missing) == 1 and len(extra) == 1  # one wrong name: surely a misspelling of the missing one
     for c in extra:
-        close = difflib.get_close_matches(c, missing, n=1, cutoff=0.6)
+        close = missing if pair else difflib.get_close_matches(c, missing, n=1, cutoff=0.6)
         if close:
             probs.append(Problem(file, c, None, f"column {close[0]!r} (misspelt?)", "unknown column"))
         else:
             probs.append(Problem(file, c, None, "only the columns " + ", ".join(required), "unexpected column"))
     for c in missing:
-        close = difflib.get_close_matches(c, extra, n=1, cutoff=0.6)
+        close = extra if pair else difflib.get_close_matches(c, extra, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         probs.append(Problem(file, c, None, "this required column" + hint, "missing"))
     return probs
