@@ -141,7 +141,7 @@ def test_mat_missing_variable_and_missing_time(tmp_path):
     assert "rig_log.mat" in msg and "'v_sh'" in msg and "'v_shunt'" in msg and "'vs'" in msg
     with pytest.raises(ContractError, match="dt"):
         read_mat(p, {"u_cmd": "u", "v_shunt": "vs", "relay": "rel"})
-    with pytest.raises(ContractError, match="struct 'nope'"):
+    with pytest.raises(ContractError, match="struct variable 'nope'"):
         read_mat(p, {"u_cmd": "u", "v_shunt": "vs", "relay": "rel"}, group="nope", dt=1e-3)
 
 
