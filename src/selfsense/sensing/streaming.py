@@ -14,9 +14,10 @@ loop per sample:
    is the mean of ``V_s`` over the FIRST shorted (relay) segment; it is known exactly when that segment ends,
    which is before it is first needed (charge is 0 on shorted samples), so streaming loses nothing -- provided
    the log starts with its relay segment (otherwise pass ``offset=<volts>``).
-3. ``V_H = H(Q)``: the modified Prandtl-Ishlinskii operator with creep, eq. (42) (play eqs. 29-31, creep
-   eqs. 38-39 with ``g = 1 - exp(-a T_s)``, superposition eq. 33), same recursion as
-   ``selfsense.hysteresis._kernels.gamma_kernel`` (state: play states, creep states, previous input).
+3. ``V_H = H(Q) = sign * (G[Q] - c Q)`` with ``G`` the modified Prandtl-Ishlinskii operator with creep, eq. (42)
+   (play eqs. 29-31, creep eqs. 38-39 with ``g = 1 - exp(-a T_s)``, superposition eq. 33), same recursion as
+   ``selfsense.hysteresis._kernels.gamma_kernel`` (state: play states, creep states, previous input), and the
+   estimator's gauge (``GaugedH``: ``sign``, ``c``; 1 and 0 for a bare ``ModifiedPI``).
 4. ``V_p = V - V_H`` (eq. 27); ``dx_raw = A1 Q + A2 V_p``, ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted.
 5. Post-processing (thesis sec. 5.2, Fig. 24): sliding DC offset on dx (and on f if configured) that resets to the
    current value whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to the calibrated ranges.
@@ -46,8 +47,8 @@ _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 
 # ---- parameter vector layout (float64) ----------------------------------------------------------------------
 (_P_R, _P_INAMP, _P_GAIN, _P_A1, _P_A2, _P_B21, _P_B22, _P_ZL, _P_DXLO, _P_DXHI, _P_FLO, _P_FHI, _P_DCDX,
- _P_DCF, _P_LIMIT, _P_B, _P_W0, _P_NH, _P_NC, _P_NP, _P_NN) = range(21)
-_NP_FIXED = 21
+ _P_DCF, _P_LIMIT, _P_B, _P_W0, _P_NH, _P_NC, _P_NP, _P_NN, _P_HSIGN, _P_HC) = range(23)
+_NP_FIXED = 23
 
 # status codes returned by the kernels
 _OK = 0
@@ -84,9 +85,74 @@ def _views(P, S):
     return rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(cache=True)
+def _charge(S, R, Vs, shorted, tk, dt, use_t):
+    """Charge update, eq. (57), in strict IEEE arithmetic (no fast-math contraction) so that the running sum is
+    bit-identical to ``np.cumsum`` of the increments ``0.5 * (i_k + i_{k-1}) * (t_k - t_{k-1})`` in
+    ``selfsense.signals.charge_from_shunt``. Returns (status, q); updates S."""
+    off = S[_OFF]
+    inc = 0.0
+    if S[_NSEEN] > 0.0:
+        if use_t:
+            h = tk - S[_T_LAST]
+            if not (h > 0.0):
+                return _ERR_TIME, 0.0
+        else:
+            h = dt
+        if not shorted:
+            inc = 0.5 * ((Vs - off) / R + (S[_VS_LAST] - off) / R) * h
+    csum = S[_CSUM] + inc
+    S[_CSUM] = csum
+    if shorted:
+        S[_BASE] = csum
+        q = 0.0
+    else:
+        q = csum - S[_BASE]
+    if use_t:
+        S[_T_LAST] = tk
+    else:
+        S[_T_LAST] += dt
+    S[_VS_LAST] = Vs
+    S[_NSEEN] += 1.0
+    return _OK, q
+
+
+
+@njit(cache=True, fastmath=_FM)
+def _gamma_step(P, S, xk, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c):
+    """One sample of the modified PI operator G, eq. (42): play (31), creep (39), superposition (33); the same
+    recursion as ``selfsense.hysteresis._kernels.gamma_kernel`` (same fast-math flags). Updates p, c, S[x_last]."""
+    u = P[_P_B]
+    for i in range(rH.shape[0]):
+        zi = max(xk - rH[i], min(xk + rH[i], p[i]))
+        p[i] = zi
+        u += wH[i] * zi
+    xl = S[_X_LAST]
+    if not np.isnan(xl):
+        for j in range(rC.shape[0]):
+            cj = c[j]
+            tt = max(xl - rC[j], min(xl + rC[j], cj))
+            cj = cj + gC[j] * (tt - cj)
+            c[j] = cj
+            u += wC[j] * cj
+    else:
+        for j in range(rC.shape[0]):
+            u += wC[j] * c[j]
+    S[_X_LAST] = xk
+    g = P[_P_W0] * u
+    for i in range(rSp.shape[0]):
+        g += wSp[i] * max(u - rSp[i], 0.0)
+    for i in range(rSn.shape[0]):
+        g += wSn[i] * min(u - rSn[i], 0.0)
+    return g
+
+
+@njit(inline="always")
 def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c, aux, k):
-    """One sample through the whole chain; returns (status, dx_hat, f_hat). State S, p, c updated in place."""
+    """One sample through the whole chain; returns (status, dx_hat, f_hat). State S, p, c updated in place.
+
+    Strict IEEE arithmetic here (no contraction into FMAs), so V, q and the linear combinations round exactly as
+    the NumPy batch code; only the operator sums (``_gamma_step``) use the operator kernels' fast-math flags."""
     if rk != 0.0 and rk != 1.0:
         return _ERR_RELAY_VALUE, 0.0, 0.0
     shorted = rk == 1.0
@@ -108,55 +174,13 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
             S[_OFF] = S[_OFF_SUM] / S[_OFF_N]
             S[_OFF_MODE] = _OFF_FIXED
     # --- charge, eq. (57): trapezoid, cumulative sum minus its value at the last reset (signals.charge_from_shunt)
-    R = P[_P_R]
-    off = S[_OFF]
-    inc = 0.0
-    if S[_NSEEN] > 0.0:
-        if use_t:
-            h = tk - S[_T_LAST]
-            if not (h > 0.0):
-                return _ERR_TIME, 0.0, 0.0
-        else:
-            h = dt
-        if not shorted:
-            inc = 0.5 * ((Vs - off) / R + (S[_VS_LAST] - off) / R) * h
-    csum = S[_CSUM] + inc
-    S[_CSUM] = csum
-    if shorted:
-        S[_BASE] = csum
-        q = 0.0
-    else:
-        q = csum - S[_BASE]
-    if use_t:
-        S[_T_LAST] = tk
-    else:
-        S[_T_LAST] += dt
-    S[_VS_LAST] = Vs
-    S[_NSEEN] += 1.0
-    # --- H(q), eq. (42): play (31), creep (39), superposition (33); as hysteresis._kernels.gamma_kernel
-    xk = q
-    u = P[_P_B]
-    for i in range(rH.shape[0]):
-        zi = max(xk - rH[i], min(xk + rH[i], p[i]))
-        p[i] = zi
-        u += wH[i] * zi
-    xl = S[_X_LAST]
-    if not np.isnan(xl):
-        for j in range(rC.shape[0]):
-            cj = c[j]
-            tt = max(xl - rC[j], min(xl + rC[j], cj))
-            cj = cj + gC[j] * (tt - cj)
-            c[j] = cj
-            u += wC[j] * cj
-    else:
-        for j in range(rC.shape[0]):
-            u += wC[j] * c[j]
-    S[_X_LAST] = xk
-    VH = P[_P_W0] * u
-    for i in range(rSp.shape[0]):
-        VH += wSp[i] * max(u - rSp[i], 0.0)
-    for i in range(rSn.shape[0]):
-        VH += wSn[i] * min(u - rSn[i], 0.0)
+    st, q = _charge(S, P[_P_R], Vs, shorted, tk, dt, use_t)
+    if st != _OK:
+        return st, 0.0, 0.0
+    # --- H(q), eq. (42): fast-math operator step (vectorised sums), as hysteresis._kernels.gamma_kernel
+    g = _gamma_step(P, S, q, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c)
+    # gauge of SelfSensingEstimator (GaugedH): H(Q) = sign * (G[Q] - c Q); sign = 1, c = 0 for a bare operator
+    VH = P[_P_HSIGN] * (g - P[_P_HC] * q)
     # --- eq. (27) and eq. (52)
     Vp = V - VH
     if shorted:
@@ -190,7 +214,7 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
     return _OK, dx, f
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True)
 def stream_block_kernel(P, S, t, u, v, relay, dt, use_t, dx_out, f_out, aux):
     """Fused block loop: integrate, H(q), coefficients, post-processing. Returns (status, index of first bad sample).
 
@@ -209,7 +233,7 @@ def stream_block_kernel(P, S, t, u, v, relay, dt, use_t, dx_out, f_out, aux):
     return _OK, u.shape[0]
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True)
 def stream_step_kernel(P, S, tk, uk, vk, rk, dt, use_t):
     """One sample (same code as the block loop). Returns (status, dx_hat, f_hat)."""
     rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c = _views(P, S)
@@ -278,8 +302,9 @@ def _pack(model, sc: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
     head = np.zeros(_NP_FIXED)
     for key, idx in (("R", _P_R), ("inamp", _P_INAMP), ("gain", _P_GAIN), ("A1", _P_A1), ("A2", _P_A2),
                      ("B21", _P_B21), ("B22", _P_B22), ("zl", _P_ZL), ("dxlo", _P_DXLO), ("dxhi", _P_DXHI),
-                     ("flo", _P_FLO), ("fhi", _P_FHI), ("dcdx", _P_DCDX), ("dcf", _P_DCF), ("limit", _P_LIMIT)):
-        head[idx] = float(sc.get(key, 1.0 if key in ("R", "inamp") else 0.0))
+                     ("flo", _P_FLO), ("fhi", _P_FHI), ("dcdx", _P_DCDX), ("dcf", _P_DCF), ("limit", _P_LIMIT),
+                     ("hsign", _P_HSIGN), ("hc", _P_HC)):
+        head[idx] = float(sc.get(key, 1.0 if key in ("R", "inamp", "hsign") else 0.0))
     head[_P_B] = m.offset
     head[_P_W0] = s0
     head[_P_NH], head[_P_NC], head[_P_NP], head[_P_NN] = len(m.r_H), len(rC), int(pos.sum()), int(neg.sum())
@@ -317,9 +342,13 @@ class SelfSensingStream:
 
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
-        if type(estimator.hysteresis_).__name__ != "ModifiedPI":
+        h = estimator.hysteresis_
+        h_sign, h_c = 1.0, 0.0
+        if type(h).__name__ == "GaugedH":  # H(Q) = sign * (G[Q] - c Q), selfsense.sensing.estimator.GaugedH
+            h, h_sign, h_c = h.inner, float(h.sign), float(h.c)
+        if type(h).__name__ != "ModifiedPI":
             raise NotImplementedError(
-                f"SelfSensingStream supports h_model='modified_pi' only, got {type(estimator.hysteresis_).__name__}")
+                f"SelfSensingStream supports h_model='modified_pi' only, got {type(h).__name__}")
         if estimator.augmentations or estimator.coef_.get("extra_dx") or estimator.coef_.get("extra_f"):
             raise NotImplementedError("SelfSensingStream does not support estimator augmentations (batch only)")
         rig = estimator.rig if rig is None else rig
@@ -344,10 +373,11 @@ class SelfSensingStream:
             "dxlo": estimator.ranges_["dx"][0], "dxhi": estimator.ranges_["dx"][1],
             "flo": estimator.ranges_["f"][0], "fhi": estimator.ranges_["f"][1],
             "dcdx": float(bool(cfg.dc_offset)), "dcf": float(bool(cfg.dc_offset_force)), "limit": float(bool(cfg.limit)),
+            "hsign": h_sign, "hc": h_c,
         }
         if sc["R"] <= 0 or sc["inamp"] <= 0:
             raise ValueError("rig: shunt_resistance_ohm and inamp_gain must be > 0")
-        self._P, self._S0 = _pack(estimator.hysteresis_, sc)
+        self._P, self._S0 = _pack(h, sc)
         if not isinstance(offset, str):
             self._S0[_OFF_MODE] = _OFF_FIXED
             self._S0[_OFF] = float(offset)

@@ -1,0 +1,265 @@
+"""SelfSensingStream and the chunked ``selfsense estimate`` CLI against the batch pipeline.
+
+Reference: ``selfsense.stages.ingest`` (raw log -> V, q; thesis 000_18d138f03f1777c3.txt eqs. 56-57) followed by
+``SelfSensingEstimator.estimate`` (eqs. 27, 42, 52 and the Fig. 24 post-processing). The streaming estimator must
+reproduce it to 1e-12 of the signal range on any split of the samples; correctness only, no timing.
+"""
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from selfsense import io as sio
+from selfsense import stages
+from selfsense.hysteresis.pi import ModifiedPI
+from selfsense.sensing import SelfSensingEstimator, SensingConfig
+from selfsense.sensing.estimator import GaugedH
+from selfsense.sensing.streaming import SelfSensingStream, StreamError
+
+ROOT = Path(__file__).resolve().parents[2]
+
+RIG = {
+    "dataset": "ds", "sample_rate_hz": 1000.0, "shunt_resistance_ohm": 1000.0, "amplifier_gain": 15.0,
+    "inamp_gain": 10.0, "n_actuators": 5,
+    "reference": {"laser_m_per_v": 2.0e-3, "load_cell_n_per_v": 0.1},
+    "actuator_catalog": {"free_displacement_m": 10.0e-6, "blocked_force_n": 240.0, "stiffness_n_per_m": 24.0e6,
+                         "capacitance_f": 0.25e-6, "max_voltage_v": 150.0},
+    "tip_free_displacement_m": 6.3e-3,
+}
+TRIALS = [  # trial, role, tip, reference, signal
+    ("free_cal", "calibration", "free", "displacement", "sine"),
+    ("blocked_cal", "calibration", "blocked", "force", "sine"),
+    ("obj_val", "validation", "object", "force", "mixed"),
+    ("free_val", "validation", "free", "displacement", "steps"),
+]
+
+
+def _play(x, r):
+    z, out = 0.0, np.empty_like(x)
+    for k, xk in enumerate(x):
+        z = max(xk - r, min(xk + r, z))
+        out[k] = z
+    return out
+
+
+def make_log(tip, reference, signal, n=1600, fs=1000.0, seed=0, n_relay=150, rig=RIG):
+    """Raw DAQ log with a hysteretic charge-voltage relation (a play operator in q) and in-amp offset/noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    tt = np.clip(t - n_relay / fs, 0.0, None)
+    if signal == "steps":
+        u = 8.0 * (np.floor(tt * 1.5) % 2 == 0) * (tt > 0.1)
+        k = int(0.3 * fs)
+        u = np.convolve(u, np.ones(k) / k, mode="full")[:n]
+    elif signal == "mixed":
+        u = 3.5 * (1 - np.cos(2 * np.pi * 1.1 * tt)) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.5 * tt) ** 2)
+    else:
+        u = 3.5 * (1 - np.cos(2 * np.pi * 1.0 * tt))
+    u[:n_relay] = 0.0
+    Vc = rig["amplifier_gain"] * u
+    C = rig["n_actuators"] * rig["actuator_catalog"]["capacitance_f"]
+    q = C * (Vc + 0.3 * _play(Vc, 15.0))
+    Vs = rig["shunt_resistance_ohm"] * np.gradient(q, t)
+    v_shunt = rig["inamp_gain"] * Vs + 3e-4 + 1e-3 * rng.standard_normal(n)
+    frac = (Vc - Vs) / rig["actuator_catalog"]["max_voltage_v"]
+    dx = {"free": rig["tip_free_displacement_m"] * frac, "blocked": np.zeros(n)}.get(
+        tip, np.minimum(rig["tip_free_displacement_m"] * frac, 2.0e-3))
+    f = {"free": np.zeros(n), "blocked": 0.1 * frac}.get(
+        tip, 0.1 * np.clip(frac - 2.0e-3 / rig["tip_free_displacement_m"], 0, None))
+    laser = dx / 2 / rig["reference"]["laser_m_per_v"] + 1e-3 * rng.standard_normal(n)
+    load = f / rig["reference"]["load_cell_n_per_v"] + 1e-3 * rng.standard_normal(n)
+    (laser if reference == "force" else load)[:] = np.nan
+    relay = np.zeros(n)
+    relay[:n_relay] = 1.0
+    return pd.DataFrame({"t": t, "u_cmd": u, "v_shunt": v_shunt, "laser": laser, "load_cell": load, "relay": relay})
+
+
+def make_dataset(root: Path, name="ds") -> Path:
+    d = Path(root) / name
+    d.mkdir(parents=True, exist_ok=True)
+    rig = copy.deepcopy(RIG)
+    rig["dataset"] = name
+    (d / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
+    lines = ["trial,file,role,tip,object_mm,reference,signal"]
+    for k, (tr, role, tip, ref, sig) in enumerate(TRIALS):
+        lines.append(f"{tr},{tr}.parquet,{role},{tip},{'2.0' if tip == 'object' else ''},{ref},{sig}")
+        make_log(tip, ref, sig, seed=k).to_parquet(d / f"{tr}.parquet", index=False)
+    (d / "trials.csv").write_text("\n".join(lines) + "\n")
+    return d
+
+
+def _fit(d: Path, tmp: Path, **cfg):
+    meta = sio.load_trials(d).set_index("trial")
+    sigs = {t: stages.ingest(d, t, tmp / f"{t}.parquet") for t in meta.index}
+    est = SelfSensingEstimator(config=SensingConfig(**cfg), rig=sio.load_rig(d)).fit(sigs, meta)
+    return est, sigs
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("stream")
+    d = make_dataset(tmp)
+    est, sigs = _fit(d, tmp)
+    return d, est, sigs
+
+
+def _raw(d: Path, trial: str) -> pd.DataFrame:
+    return pd.read_parquet(d / f"{trial}.parquet")
+
+
+def _assert_close(a, b, what):
+    a, b = np.asarray(a), np.asarray(b)
+    rng = max(float(np.ptp(b)), 1e-300)
+    err = float(np.max(np.abs(a - b))) / rng
+    assert err <= 1e-12, f"{what}: max |stream - batch| = {err:.3g} of range (need <= 1e-12)"
+
+
+def _check_equal(stream: SelfSensingStream, est, raw: pd.DataFrame, sig: pd.DataFrame, blocks=None):
+    batch = est.estimate(sig)
+    stream.reset()
+    n = len(raw)
+    cuts = [0, n] if blocks is None else [0, *blocks, n]
+    parts = [stream.process(raw["u_cmd"].to_numpy()[a:b], raw["v_shunt"].to_numpy()[a:b],
+                            raw["relay"].to_numpy()[a:b], t=raw["t"].to_numpy()[a:b], full=True)
+             for a, b in zip(cuts[:-1], cuts[1:])]
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    # V is bit-identical; q too up to the in-amp offset (running sum vs NumPy's pairwise mean of the relay segment)
+    np.testing.assert_array_equal(out["V"], sig["V"].to_numpy())
+    np.testing.assert_allclose(out["q"], sig["q"].to_numpy(), rtol=0, atol=1e-14 * np.ptp(sig["q"].to_numpy()))
+    for col in ("V_H", "V_p", "dx_raw", "f_raw", "dx_hat", "f_hat"):
+        _assert_close(out[col], batch[col].to_numpy(), col)
+    return out, batch
+
+
+def test_stream_equals_batch_all_trials(fitted):
+    d, est, sigs = fitted
+    stream = SelfSensingStream(est)
+    for trial, sig in sigs.items():
+        out, batch = _check_equal(stream, est, _raw(d, trial), sig)
+        # non-trivial: the estimates move, the relay segment gives exactly 0, limiting is active
+        assert np.ptp(batch["dx_hat"]) > 0 or np.ptp(batch["f_hat"]) > 0
+        assert np.all(out["dx_hat"][:150] == 0.0) and np.all(out["f_hat"][:150] == 0.0)
+        lo, hi = est.ranges_["dx"]
+        assert out["dx_hat"].min() >= lo and out["dx_hat"].max() <= hi
+
+
+def test_stream_arbitrary_blocks_and_steps_equal_one_block(fitted):
+    d, est, sigs = fitted
+    raw = _raw(d, "obj_val")
+    s = SelfSensingStream(est)
+    whole = s.process(raw["u_cmd"], raw["v_shunt"], raw["relay"], t=raw["t"])
+    # split inside the relay segment, at the relay edge, and in the middle of the drive
+    s.reset()
+    split = [s.process(raw["u_cmd"][a:b], raw["v_shunt"][a:b], raw["relay"][a:b], t=raw["t"][a:b])
+             for a, b in ((0, 70), (70, 150), (150, 151), (151, 997), (997, len(raw)))]
+    for j in range(2):
+        np.testing.assert_array_equal(np.concatenate([p[j] for p in split]), whole[j])
+    # per-sample step == block (same fused per-sample code)
+    s.reset()
+    steps = np.array([s.step(u, v, r, t=tk) for tk, u, v, r in
+                      raw[["t", "u_cmd", "v_shunt", "relay"]].itertuples(index=False)])
+    np.testing.assert_allclose(steps[:, 0], whole[0], rtol=0, atol=1e-15 * np.ptp(whole[0]))
+    np.testing.assert_allclose(steps[:, 1], whole[1], rtol=0, atol=1e-15 * max(np.ptp(whole[1]), 1e-300))
+    assert s.n_samples == len(raw)
+    assert s.offset_v == pytest.approx(np.mean(raw["v_shunt"][:150] / RIG["inamp_gain"]), rel=1e-12)
+
+
+def test_stream_with_creep_and_two_sided_superposition(fitted):
+    """A hand-made H with strong creep, negative superposition thresholds, z_H0 and offset exercises every branch."""
+    d, est, sigs = fitted
+    e2 = SelfSensingEstimator.from_dict(est.to_dict(), est.rig)
+    qmax = float(np.max(np.abs(sigs["free_cal"]["q"])))
+    rng = np.random.default_rng(3)
+    r_H = np.arange(6) / 6 * qmax
+    G = ModifiedPI.with_log_creep(
+        r_H=r_H, w_H=rng.uniform(0.1, 1.0, 6) * 1e6, r_S=[0.0, 20.0, 60.0, -10.0], w_S=[1.0, 0.3, -0.2, 0.5],
+        dt=1e-3, r_K=r_H, w_K=rng.uniform(0.5, 2.0, 6) * 1e6, m=4, z_H0=0.1 * qmax, offset=3.0)
+    e2.hysteresis_ = GaugedH(G, sign=-1.0, c=3.0e5)  # the estimator's gauge H = sign * (G[Q] - c Q)
+    e2.config.dc_offset_force = True
+    stream = SelfSensingStream(e2)
+    for trial in ("free_val", "obj_val"):
+        out, batch = _check_equal(stream, e2, _raw(d, trial), sigs[trial], blocks=[100, 151, 800])
+        assert np.ptp(batch["V_H"]) > 1.0  # the operator really acts
+
+
+def test_stream_from_json_and_dt_mode(fitted, tmp_path):
+    d, est, sigs = fitted
+    p = tmp_path / "sensing.json"
+    p.write_text(json.dumps(est.to_dict()))
+    raw = _raw(d, "free_val")
+    s_t = SelfSensingStream.from_json(p, d)
+    a = s_t.process(raw["u_cmd"], raw["v_shunt"], raw["relay"], t=raw["t"])
+    s_dt = SelfSensingStream.from_json(p, d, dt=1e-3)  # uniform grid: same up to t-rounding of the time steps
+    b = s_dt.process(raw["u_cmd"], raw["v_shunt"], raw["relay"])
+    np.testing.assert_allclose(b[0], a[0], rtol=0, atol=1e-9 * np.ptp(a[0]))
+    with pytest.raises(ValueError, match="pass t or construct the stream with dt"):
+        s_t.step(0.0, 0.0, 1.0)
+
+
+def test_stream_errors(fitted):
+    d, est, sigs = fitted
+    s = SelfSensingStream(est, dt=1e-3)
+    with pytest.raises(StreamError, match="start with its relay segment"):
+        s.process(np.zeros(3), np.zeros(3), np.zeros(3))
+    assert s.n_samples == 0  # a rejected block leaves the state untouched
+    with pytest.raises(StreamError, match="only 0 and 1"):
+        s.step(0.0, 0.0, relay=0.5)
+    with pytest.raises(StreamError, match="strictly increasing"):
+        s.reset()
+        s.process(np.zeros(3), np.zeros(3), np.ones(3), t=[0.0, 1e-3, 1e-3])
+    # a given offset needs no relay segment and matches the batch with the same fixed offset
+    raw = _raw(d, "obj_val")
+    s2 = SelfSensingStream(est, offset=2.5e-5)
+    dx, f = s2.process(raw["u_cmd"][150:], raw["v_shunt"][150:], raw["relay"][150:], t=raw["t"][150:])
+    from selfsense.io.dataset import to_si
+    from selfsense.signals import prepare_trial
+
+    rig = sio.load_rig(d)
+    si = to_si(raw.iloc[150:].reset_index(drop=True), rig, "force")
+    batch = est.estimate(prepare_trial(si, rig, offset=2.5e-5))
+    _assert_close(dx, batch["dx_hat"].to_numpy(), "dx_hat (fixed offset)")
+    _assert_close(f, batch["f_hat"].to_numpy(), "f_hat (fixed offset)")
+
+
+def test_cli_chunked_equals_batch(fitted, tmp_path):
+    from selfsense.sensing.cli import main
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    raw = _raw(d, "obj_val")
+    log = tmp_path / "log.parquet"
+    raw.to_parquet(log, index=False, row_group_size=400)
+    out = tmp_path / "out.parquet"
+    assert main(["--model", str(model), "--dataset", str(d), "--log", str(log), "--out", str(out),
+                 "--chunk", "333", "--full"]) == 0
+    got = pd.read_parquet(out)
+    batch = est.estimate(sigs["obj_val"])
+    np.testing.assert_array_equal(got["t"].to_numpy(), raw["t"].to_numpy())
+    for col in ("dx_hat", "f_hat", "V_H", "q"):
+        _assert_close(got[col].to_numpy(), batch[col].to_numpy(), f"cli {col}")
+    assert not list(tmp_path.glob("*.tmp*")), "temporary file left behind"
+    # a bad log leaves no output behind and reports the problem
+    bad = raw.drop(columns=["v_shunt"])
+    bad.to_parquet(tmp_path / "bad.parquet", index=False)
+    out2 = tmp_path / "out2.parquet"
+    assert main(["--model", str(model), "--dataset", str(d), "--log", str(tmp_path / "bad.parquet"),
+                 "--out", str(out2)]) != 0
+    assert not out2.exists()
+
+
+@pytest.mark.skipif(not (ROOT / "data" / "raw" / "sample").exists(), reason="data/raw/sample not present yet")
+def test_stream_equals_batch_on_bundled_sample(tmp_path):
+    d = ROOT / "data" / "raw" / "sample"
+    meta = sio.load_trials(d).set_index("trial")
+    est, sigs = _fit(d, tmp_path)
+    stream = SelfSensingStream(est)
+    for trial in meta.index[:3]:
+        raw = sio.read_log(d / meta.loc[trial, "file"])
+        _check_equal(stream, est, raw, sigs[trial], blocks=[len(raw) // 3])
