@@ -1,0 +1,93 @@
+"""Property-based tests: valid inputs never crash and pass; invalid inputs only ever give ContractError."""
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from selfsense.io import ContractError, load_dataset, trial_signals, validate_dataset
+from selfsense.signals import prepare_trial
+
+from conftest import RIG, make_dataset
+from test_catalogue import CASES
+
+SETTINGS = settings(max_examples=15, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+
+
+@st.composite
+def valid_params(draw):
+    fs = draw(st.sampled_from([200.0, 1000.0, 2500.0]))
+    freq = draw(st.floats(0.5, 1.5))
+    n_relay = draw(st.integers(2, 100))
+    n = n_relay + int(fs / (2 * freq)) + draw(st.integers(10, 300))
+    return dict(fs=fs, freq_hz=freq, n=n, n_relay=n_relay, amp_v=draw(st.floats(0.5, 8.0)),
+                noise_v=draw(st.sampled_from([0.0, 1e-4, 3e-3])), seed=draw(st.integers(0, 2**16)),
+                fmt=draw(st.sampled_from(["csv", "parquet"])))
+
+
+def _trials(fmt):
+    from conftest import TRIALS
+
+    return [(t, f.rsplit(".", 1)[0] + "." + fmt, *rest) for t, f, *rest in TRIALS]
+
+
+@SETTINGS
+@given(p=valid_params())
+def test_valid_datasets_pass_and_prepare(p):
+    rig = dict(RIG, sample_rate_hz=p["fs"])
+    with tempfile.TemporaryDirectory() as tmp:
+        d = make_dataset(Path(tmp), rig=rig, trials=_trials(p["fmt"]), seed=p["seed"], n=p["n"], fs=p["fs"],
+                         freq_hz=p["freq_hz"], n_relay=p["n_relay"], amp_v=p["amp_v"], noise_v=p["noise_v"])
+        assert validate_dataset(d) == []
+        ds = load_dataset(d)
+        for trial in ds.trials["trial"]:
+            pr = prepare_trial(trial_signals(d, trial, rig=ds.rig), ds.rig)
+            assert len(pr) == p["n"] and np.isfinite(pr[["t", "V", "q"]].to_numpy()).all()
+            assert (pr.loc[pr.relay == 1, "q"] == 0).all()
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("base"))
+
+
+@SETTINGS
+@given(case=st.sampled_from(CASES), case2=st.sampled_from(CASES))
+def test_invalid_datasets_only_raise_contract_error(base, case, case2):
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(shutil.copytree(base, Path(tmp) / "ds"))
+        for c in (case, case2):
+            try:
+                c[1](d)
+            except (FileNotFoundError, KeyError, ValueError, IndexError, AttributeError):
+                pass  # the first mutation may have removed what the second one edits
+        with pytest.raises(ContractError) as ei:
+            load_dataset(d)
+        assert ei.value.problems and all("\n" not in str(p) for p in ei.value.problems)
+
+
+@SETTINGS
+@given(target=st.sampled_from(["rig.yaml", "trials.csv", "blocked_sine.csv", "free_sine.parquet"]),
+       payload=st.one_of(st.binary(max_size=300), st.text(max_size=300)),
+       keep_prefix=st.integers(0, 400))
+def test_garbage_files_only_raise_contract_error(base, target, payload, keep_prefix):
+    """A file replaced by (a prefix of itself plus) arbitrary bytes or text: never another exception."""
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(shutil.copytree(base, Path(tmp) / "ds"))
+        p = d / target
+        data = payload.encode("utf-8", "surrogatepass") if isinstance(payload, str) else payload
+        p.write_bytes(p.read_bytes()[:keep_prefix] + data)
+        probs = validate_dataset(d)
+        assert isinstance(probs, list)
+        if probs:
+            with pytest.raises(ContractError):
+                load_dataset(d)
+        else:  # garbage that happens to be valid must then load
+            load_dataset(d)
+        for pr in probs:
+            assert "\n" not in str(pr) and "\r" not in str(pr)
