@@ -160,12 +160,13 @@ def test_stream_arbitrary_blocks_and_steps_equal_one_block(fitted):
              for a, b in ((0, 70), (70, 150), (150, 151), (151, 997), (997, len(raw)))]
     for j in range(2):
         np.testing.assert_array_equal(np.concatenate([p[j] for p in split]), whole[j])
-    # per-sample step == block (same fused per-sample code)
+    # per-sample step == block: the same per-sample source compiled into two kernels; LLVM may vectorise the
+    # operator sums differently in each (reassociation), so agreement is to rounding, not bit-exact
     s.reset()
     steps = np.array([s.step(u, v, r, t=tk) for tk, u, v, r in
                       raw[["t", "u_cmd", "v_shunt", "relay"]].itertuples(index=False)])
-    np.testing.assert_allclose(steps[:, 0], whole[0], rtol=0, atol=1e-15 * np.ptp(whole[0]))
-    np.testing.assert_allclose(steps[:, 1], whole[1], rtol=0, atol=1e-15 * max(np.ptp(whole[1]), 1e-300))
+    _assert_close(steps[:, 0], whole[0], "step dx_hat")
+    _assert_close(steps[:, 1], whole[1], "step f_hat")
     assert s.n_samples == len(raw)
     assert s.offset_v == pytest.approx(np.mean(raw["v_shunt"][:150] / RIG["inamp_gain"]), rel=1e-12)
 

@@ -38,6 +38,8 @@ __all__ = ["SelfSensingStream", "StreamError"]
 
 # same fast-math set as selfsense.hysteresis._kernels (reassociation lets LLVM vectorise the operator sums)
 _FM = {"reassoc", "nsz", "contract"}
+# the streaming kernels: reassociation (vectorised operator sums) but no contraction, see _one
+_FM_STREAM = {"reassoc", "nsz"}
 
 # ---- state vector layout (float64) --------------------------------------------------------------------------
 _T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _X_LAST, _DX_DC, _F_DC = range(12)
@@ -86,42 +88,35 @@ def _views(P, S):
 
 
 @njit(cache=True)
-def _charge(S, R, Vs, shorted, tk, dt, use_t):
-    """Charge update, eq. (57), in strict IEEE arithmetic (no fast-math contraction) so that the running sum is
-    bit-identical to ``np.cumsum`` of the increments ``0.5 * (i_k + i_{k-1}) * (t_k - t_{k-1})`` in
-    ``selfsense.signals.charge_from_shunt``. Returns (status, q); updates S."""
-    off = S[_OFF]
+def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use_t):
+    """Charge update, eq. (57), scalars only and strict IEEE arithmetic (no fast-math), so that the running sum
+    is bit-identical to ``np.cumsum`` of the increments ``0.5 * (i_k + i_{k-1}) * (t_k - t_{k-1})`` in
+    ``selfsense.signals.charge_from_shunt``. Returns (status, q, csum, base, t_last)."""
     inc = 0.0
-    if S[_NSEEN] > 0.0:
+    if nseen > 0.0:
         if use_t:
-            h = tk - S[_T_LAST]
+            h = tk - t_last
             if not (h > 0.0):
-                return _ERR_TIME, 0.0
+                return _ERR_TIME, 0.0, csum, base, t_last
         else:
             h = dt
         if not shorted:
-            inc = 0.5 * ((Vs - off) / R + (S[_VS_LAST] - off) / R) * h
-    csum = S[_CSUM] + inc
-    S[_CSUM] = csum
+            inc = 0.5 * ((Vs - off) / R + (vs_last - off) / R) * h
+    csum = csum + inc
     if shorted:
-        S[_BASE] = csum
+        base = csum
         q = 0.0
     else:
-        q = csum - S[_BASE]
-    if use_t:
-        S[_T_LAST] = tk
-    else:
-        S[_T_LAST] += dt
-    S[_VS_LAST] = Vs
-    S[_NSEEN] += 1.0
-    return _OK, q
+        q = csum - base
+    t_last = tk if use_t else t_last + dt
+    return _OK, q, csum, base, t_last
 
 
-
-@njit(cache=True, fastmath=_FM)
+@njit(inline="always")
 def _gamma_step(P, S, xk, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c):
     """One sample of the modified PI operator G, eq. (42): play (31), creep (39), superposition (33); the same
-    recursion as ``selfsense.hysteresis._kernels.gamma_kernel`` (same fast-math flags). Updates p, c, S[x_last]."""
+    recursion as ``selfsense.hysteresis._kernels.gamma_kernel``. Updates p, c, S[x_last]. Inlined at numba-IR
+    level (a real call would pass 14 arrays with reference counting on every sample)."""
     u = P[_P_B]
     for i in range(rH.shape[0]):
         zi = max(xk - rH[i], min(xk + rH[i], p[i]))
@@ -151,8 +146,9 @@ def _gamma_step(P, S, xk, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c):
 def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c, aux, k):
     """One sample through the whole chain; returns (status, dx_hat, f_hat). State S, p, c updated in place.
 
-    Strict IEEE arithmetic here (no contraction into FMAs), so V, q and the linear combinations round exactly as
-    the NumPy batch code; only the operator sums (``_gamma_step``) use the operator kernels' fast-math flags."""
+    Compiled with reassociation only (``_FM_STREAM``: lets LLVM vectorise the operator sums) and without FMA
+    contraction, so V and the linear combinations round exactly as the NumPy batch code; the charge is computed
+    in the strict scalar function ``_charge``."""
     if rk != 0.0 and rk != 1.0:
         return _ERR_RELAY_VALUE, 0.0, 0.0
     shorted = rk == 1.0
@@ -174,9 +170,15 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
             S[_OFF] = S[_OFF_SUM] / S[_OFF_N]
             S[_OFF_MODE] = _OFF_FIXED
     # --- charge, eq. (57): trapezoid, cumulative sum minus its value at the last reset (signals.charge_from_shunt)
-    st, q = _charge(S, P[_P_R], Vs, shorted, tk, dt, use_t)
+    st, q, csum, base, t_last = _charge(S[_CSUM], S[_BASE], S[_T_LAST], S[_VS_LAST], S[_NSEEN], S[_OFF], P[_P_R],
+                                        Vs, shorted, tk, dt, use_t)
     if st != _OK:
         return st, 0.0, 0.0
+    S[_CSUM] = csum
+    S[_BASE] = base
+    S[_T_LAST] = t_last
+    S[_VS_LAST] = Vs
+    S[_NSEEN] += 1.0
     # --- H(q), eq. (42): fast-math operator step (vectorised sums), as hysteresis._kernels.gamma_kernel
     g = _gamma_step(P, S, q, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c)
     # gauge of SelfSensingEstimator (GaugedH): H(Q) = sign * (G[Q] - c Q); sign = 1, c = 0 for a bare operator
@@ -214,7 +216,7 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
     return _OK, dx, f
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FM_STREAM)
 def stream_block_kernel(P, S, t, u, v, relay, dt, use_t, dx_out, f_out, aux):
     """Fused block loop: integrate, H(q), coefficients, post-processing. Returns (status, index of first bad sample).
 
@@ -233,7 +235,7 @@ def stream_block_kernel(P, S, t, u, v, relay, dt, use_t, dx_out, f_out, aux):
     return _OK, u.shape[0]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FM_STREAM)
 def stream_step_kernel(P, S, tk, uk, vk, rk, dt, use_t):
     """One sample (same code as the block loop). Returns (status, dx_hat, f_hat)."""
     rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c = _views(P, S)
