@@ -1,8 +1,10 @@
 """Sub-step integrator of the virtual tweezer (numba).
 
 Per sub-step (default 10 per DAQ sample, i.e. 10 kHz) the kernel
-1. advances the HV amplifier (dead zone, first-order bandwidth, slew limit) from the held DAQ
-   output u_cmd (zero-order hold);
+1. advances the HV amplifier (dead zone, first-order bandwidth, slew limit) from the DAQ output
+   u_cmd, reconstructed linearly between the 1 kHz AO samples (a smoothing AO filter; a bare
+   zero-order hold would put a +-20 % sawtooth on the shunt current that synchronous sampling
+   turns into a ~9 % charge bias);
 2. solves the implicit (backward-Euler) node equation of the charge circuit (thesis
    000_18d138f03f1777c3.txt sec. 5.1.1, Fig. 18, eqs. 56-57) for the actuator charge q_act:
 
@@ -220,17 +222,20 @@ def run_kernel(u_cmd, relay, dT, P, comps, out):
         kke = kk + mt / (dts * dts) + ct / dts
         rel = relay[kk_] != 0
         g_r = grel if rel else 0.0
-        v_t = gain * u_cmd[kk_]
-        if dz > 0.0:
-            if v_t > dz:
-                v_t -= dz
-            elif v_t < -dz:
-                v_t += dz
-            else:
-                v_t = 0.0
+        u0 = u_cmd[kk_]
+        u1 = u_cmd[kk_ + 1] if kk_ + 1 < n else u0
         dVdq0 = 1.0 / den / qref * qref + hlin / qref
         stress = 1.0 + sm * abs(ftip) / fsr
         for s in range(nsub):
+            # DAQ analog output with reconstruction filter: linear between the AO samples
+            v_t = gain * (u0 + (u1 - u0) * (s + 1) / nsub)
+            if dz > 0.0:
+                if v_t > dz:
+                    v_t -= dz
+                elif v_t < -dz:
+                    v_t += dz
+                else:
+                    v_t = 0.0
             Vc_new = (Vc + atau * v_t) / (1.0 + atau)
             if slew > 0.0:
                 dv = Vc_new - Vc
@@ -275,22 +280,9 @@ def run_kernel(u_cmd, relay, dT, P, comps, out):
                     ra = r
                     have_a = True
                     step = -r / jac
+                    if abs(step) < 1e-14 or it == 39:
+                        break   # accept the values evaluated at qn (|step| < 1e-14 C)
                     qn = qn + step
-                    if abs(step) < 1e-16 + 1e-12 * abs(qn):
-                        break
-                # final consistent evaluation at qn
-                u = qn / qref
-                _fill_l(u, comps, lu)
-                y = preisach_eval(u, lu, tp, ty, tl, iv, fv, cl, comps)
-                vh = (hlin * u - (y - ydm)) * stress
-                for j in range(3):
-                    vh += ecc[j] * (1.0 - ecb[j]) * (u - z[j])
-                p0 = (qn + A * xcr - A * Kn * xcr / D) / den
-                x0 = (A * p0 + Kn * xcr) / D
-                rhs = -k12 * x0 + mt * (d + dts * vd) / (dts * dts) + ct * d / dts
-                dn, tipn, fn = _solve_tip(kke, rhs, contact, gap, kenv, hm, dref, zb, br)
-                vpn = p0 + p1 * dn
-                Vn = vpn + vh
                 if fixed_i:
                     isn = Ifix
                     Vc_new = Vn + Rs * Ifix

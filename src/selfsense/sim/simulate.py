@@ -172,6 +172,9 @@ def _drive(trial, dev, fs):
     relay = (t < relay_s).astype(np.float64)
     v = waveform(t, trial, start=relay_s + 0.25)
     v[relay > 0] = 0.0
+    if not v.max() > 0.0:
+        raise ValueError(f"trial {trial.get('trial')!r}: duration {trial['duration']} s too short for one "
+                         f"{trial['signal']} cycle after the relay")
     u = _quantize(np.clip(v / dev.amplifier_gain, 0.0, 10.0), dev)
     return t, u, relay
 
@@ -259,13 +262,19 @@ def _scenario_parts(scenario, seed):
     return sc, seed, dev, fs, sub, eff
 
 
-def simulate_scenario_in_memory(scenario, seed: int | None = None, contributions: bool = False) -> dict:
-    """All trials of a scenario in memory: ``{trial: (log, truth)}`` (insertion order = scenario order)."""
+def simulate_scenario_in_memory(scenario, seed: int | None = None, contributions: bool = False,
+                                only=None) -> dict:
+    """All trials of a scenario in memory: ``{trial: (log, truth)}`` (insertion order = scenario order).
+    ``only``: optional collection of trial names to simulate (same results as in the full run:
+    per-trial seeds and campaign times do not depend on which trials are simulated)."""
     sc, seed, dev, fs, sub, eff = _scenario_parts(scenario, seed)
     res = {}
     tc = 0.0
     for i, tr in enumerate(sc["trials"]):
         tc += float(tr.get("rest_before_s", 60.0))
+        if only is not None and tr["trial"] not in only:
+            tc += float(tr["duration"])
+            continue
         res[tr["trial"]] = simulate_trial(tr, dev, eff, seed=seed, index=i, sample_rate_hz=fs, substeps=sub,
                                           campaign_t0=tc, contributions=contributions, effects_defaults=False)
         tc += float(tr["duration"])
@@ -293,7 +302,7 @@ def rig_dict(name: str, dev: DeviceParams, fs: float) -> dict:
     }
 
 
-def _write_parquet(df: pd.DataFrame, path: Path, float32: bool = False):
+def write_parquet(df: pd.DataFrame, path: Path, float32: bool = False):
     arrays, names = [], []
     for c in df.columns:
         x = df[c].to_numpy()
@@ -333,8 +342,8 @@ def simulate_dataset(scenario, seed: int | None = None, out_dir=None, truth_dir=
         for tr in sc["trials"]:
             log, truth = res[tr["trial"]]
             fname = f"{tr['trial']}.parquet"
-            _write_parquet(log, tmp_out / fname)
-            _write_parquet(truth, tmp_truth / fname, float32=True)
+            write_parquet(log, tmp_out / fname)
+            write_parquet(truth, tmp_truth / fname, float32=True)
             om = tr.get("object_mm")
             rows.append({"trial": tr["trial"], "file": fname, "role": tr["role"], "tip": tr["tip"],
                          "object_mm": "" if om is None else f"{float(om):g}", "reference": tr["reference"],
