@@ -10,6 +10,7 @@ warning and on stderr: the scale-out path is still exercised, never silently ski
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -29,6 +30,8 @@ STOP = ROOT / "cluster" / "stop_local_slurm.sh"
 STATE = Path(os.environ.get("SELFSENSE_SLURM_STATE", "/tmp/selfsense-slurm"))
 #: artefacts that must be identical between the local and the cluster run
 COMPARED = ("tables/*.csv", "model/*.json", "estimates/*.parquet")
+#: fit-report keys that hold wall-clock durations (not results; see test_cluster_results_byte_identical_to_local)
+WALL_CLOCK_KEYS = ("seconds",)
 
 pytestmark = pytest.mark.slow
 
@@ -50,7 +53,9 @@ def engine(request):
     """``{"kind": "slurm"|"cluster-generic", "profile": Path, "reason": str}``; stops what it started."""
     reason = None
     started = False
-    if os.geteuid() != 0:
+    if os.environ.get("SELFSENSE_TEST_NO_SLURM"):
+        reason = "SELFSENSE_TEST_NO_SLURM is set"
+    elif os.geteuid() != 0:
         reason = "not running as root (start_local_slurm.sh installs packages and starts munged/slurmd)"
     elif not (shutil.which("sinfo") or shutil.which("apt-get")):
         reason = "neither SLURM nor apt-get is available on this machine"
@@ -144,8 +149,9 @@ def test_cluster_run_went_through_the_engine(engine, runs):
         for jid in ids:
             info = subprocess.run(["scontrol", "show", "job", jid], capture_output=True, text=True).stdout
             assert "JobState=COMPLETED" in info, f"SLURM job {jid} did not complete:\n{info}"
-        # per-trial jobs were batched into group jobs (profile groups/group-components)
-        assert "group_batch_ingest" in out or "batch_ingest" in out
+        # the profile's stage groups (groups/group-components) were submitted as group jobs
+        for group in ("prep", "fit", "post"):
+            assert re.search(rf"Group job {group}\b", out), f"no group job {group!r} in the log:\n{out[-3000:]}"
     else:
         args = sorted((runs["remote_dir"] / ".fakecluster").glob("*.args"))
         assert args, "the cluster-generic run submitted no job to cluster/submit.sh"
@@ -156,14 +162,55 @@ def test_cluster_run_went_through_the_engine(engine, runs):
         _say(f"cluster-generic run used instead of SLURM because: {engine['reason']}")
 
 
-def test_cluster_results_identical_to_local(runs):
+def _json_diff(a, b, path=""):
+    """Dotted paths of the leaves where two JSON documents differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = [f"{path}.{k}".lstrip(".") for k in sorted(set(a) ^ set(b))]
+        for k in sorted(set(a) & set(b)):
+            out += _json_diff(a[k], b[k], f"{path}.{k}")
+        return out
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in _json_diff(x, y, f"{path}[{i}]")]
+    return [] if a == b else [path.lstrip(".")]
+
+
+def _strip(doc, keys=WALL_CLOCK_KEYS):
+    if isinstance(doc, dict):
+        return {k: _strip(v, keys) for k, v in doc.items() if k not in keys}
+    if isinstance(doc, list):
+        return [_strip(v, keys) for v in doc]
+    return doc
+
+
+def test_cluster_science_identical_to_local(runs):
+    """Every table, estimate and fitted number is the same (wall-clock timing fields of the fit reports aside)."""
     a, b = _hashes(runs["local"]), _hashes(runs["remote"])
     assert any(k.startswith("estimates/") for k in a), f"no estimates in the local run: {sorted(a)}"
     assert any(k.startswith("model/") for k in a) and any(k.startswith("tables/") for k in a)
     assert a.keys() == b.keys(), f"different artefacts: {sorted(set(a) ^ set(b))}"
-    diff = [k for k in a if a[k] != b[k]]
-    assert not diff, f"cluster and local results differ: {diff}"
+    for k in a:
+        if k.endswith(".json"):
+            ja = json.loads((runs["local"] / k).read_text())
+            jb = json.loads((runs["remote"] / k).read_text())
+            assert _strip(ja) == _strip(jb), f"{k}: cluster and local models differ at {_json_diff(ja, jb)}"
+        else:
+            assert a[k] == b[k], f"{k}: cluster and local results differ"
     assert (runs["remote"] / "report.html").stat().st_size > 0
+
+
+def test_cluster_results_byte_identical_to_local(runs):
+    """Same bytes (determinism rule: no wall-clock in results). Fails while a model JSON records fit durations."""
+    a, b = _hashes(runs["local"]), _hashes(runs["remote"])
+    diff = [k for k in a if a[k] != b.get(k)]
+    detail = []
+    for k in diff:
+        if k.endswith(".json"):
+            ja = json.loads((runs["local"] / k).read_text())
+            jb = json.loads((runs["remote"] / k).read_text())
+            detail.append(f"{k} differs at {_json_diff(ja, jb)}")
+        else:
+            detail.append(f"{k} differs")
+    assert not diff, "cluster and local results are not byte-identical: " + "; ".join(detail)
 
 
 def _gap_benchmark_rule() -> str | None:
