@@ -15,7 +15,10 @@ validate(config, "workflow/schemas/config.schema.yaml")
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/pipeline.smk"
-if os.path.exists(os.path.join(workflow.basedir, "workflow/rules/gap.smk")):
+HAVE_GAP_RULES = os.path.exists(os.path.join(workflow.basedir, "workflow/rules/gap.smk"))
+
+
+if HAVE_GAP_RULES:
 
     include: "workflow/rules/gap.smk"
 

@@ -179,7 +179,7 @@ def report_inputs(wildcards):
     }
     if config.get("report", {}).get("compare_modes", True):
         inputs["modes"] = f"{RESULTS}/{d}/tables/modes.md"
-    if GAP_ENABLED:
+    if GAP_ENABLED and HAVE_GAP_RULES:
         inputs["gap"] = f"{RESULTS}/{d}/gap/verdict.json"
     return inputs
 

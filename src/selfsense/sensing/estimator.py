@@ -75,7 +75,7 @@ class SensingConfig:
     h_model: str = "modified_pi"
     n_play: int = 15
     n_sup: int = 15
-    n_creep: int = 4
+    n_creep: int | str = "auto"
     creep: bool = True
     solver: str = "CLARABEL"
     regression: str = "auto"
@@ -96,8 +96,8 @@ class SensingConfig:
         for name in ("n_play", "n_sup"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SensingConfig.{name}: expected a positive integer, found {getattr(self, name)!r}")
-        if int(self.n_creep) < 0:
-            raise ValueError(f"SensingConfig.n_creep: expected >= 0, found {self.n_creep!r}")
+        if self.n_creep != "auto" and (not isinstance(self.n_creep, (int, np.integer)) or int(self.n_creep) < 0):
+            raise ValueError(f"SensingConfig.n_creep: expected 'auto' or an integer >= 0, found {self.n_creep!r}")
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> "SensingConfig":
@@ -173,9 +173,18 @@ class GaugedH:
         return cls(_h_from_dict(d["inner"]), d["sign"], d["c"])
 
 
+def auto_creep_count(duration_s: float, dt: float) -> int:
+    """Number m of log(t) creep eigenvalues a_j = 1/(10^(j-1) T_s) (thesis eq. 40) whose slowest time constant
+    10^(m-1) T_s reaches the calibration trial's duration: m = ceil(log10(duration / T_s)) + 1."""
+    return int(np.ceil(np.log10(max(duration_s / dt, 1.0)))) + 1
+
+
 def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
     """Fit the H(q) operator of ``cfg.h_model`` to the calibration target; returns (model, report dict)."""
     t0 = time.perf_counter()
+    n_creep = cfg.n_creep
+    if n_creep == "auto":
+        n_creep = auto_creep_count(dt * len(Q), dt)
     sign = loop_orientation(Q, y)
     ys = sign * y
     slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
@@ -185,7 +194,7 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
         from selfsense.hysteresis.identify import fit_modified_pi
 
         inner, rep = fit_modified_pi(
-            Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=cfg.n_creep, creep=cfg.creep,
+            Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
             solver=cfg.solver, fit_z0=cfg.fit_z0,
         )
         report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
@@ -204,6 +213,7 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
         "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))),
         "gauge_sign": sign,
         "gauge_c": c,
+        "n_creep": int(n_creep),
     })
     report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
     report["seconds"] = time.perf_counter() - t0
