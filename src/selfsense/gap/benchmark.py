@@ -1,0 +1,231 @@
+"""Blind benchmark of the gap diagnostic on simulated devices (GAP_DIAGNOSIS.md sec. 4).
+
+For each case: draw effects (0 ~20 %, 1 ~50 %, 2-3, open-set tier), simulate in memory, run :func:`diagnose` on the
+dataset only (the manifest is sealed: the diagnostic receives trials, meta and rig, never the effect list), then
+define the truth counterfactually: re-simulate the same seed with subsets of the effects, recalibrate the nominal
+estimator, and take the exact Shapley value of each effect in the held-out error over the 2^k counterfactual
+datasets as its *true shrink*. An effect is *present* only if its true shrink exceeds
+``max(0.10 x gap, 0.03 x error)`` (calibration can absorb an injected effect completely).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from . import stats
+from .data import Case
+from .diagnose import Evaluator, diagnose
+from .library import LIBRARY, effect
+
+__all__ = ["TIERS", "run_scenario", "score", "write_scores", "run_benchmark", "calibrate_thresholds", "simulator"]
+
+TIERS = {
+    "fast": {"T": 3.0, "fs": 400.0, "n_boot": 8},
+    "full": {"T": 6.0, "fs": 500.0, "n_boot": 30},
+}
+
+
+def simulator() -> Callable:
+    """In-memory scenario simulator: (effects dict, seed, T, fs) -> (trials, meta, rig).
+
+    Uses :mod:`selfsense.gap.toysim` (the fast in-memory generator; its forms differ from the library, FORMS.md)."""
+    from .toysim import simulate_case
+
+    return simulate_case
+
+
+def _family(name: str) -> str:
+    return name.split(".")[0]
+
+
+def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = None,
+                 thresholds: dict | None = None) -> dict:
+    """One benchmark case; returns a JSON-able record (manifest, truth, prediction, timing)."""
+    cfg = TIERS[tier]
+    sim = simulator()
+    from .toysim import draw_scenario
+
+    rng = np.random.default_rng([seed, i, 7])
+    effects = draw_scenario(rng) if effects is None else dict(effects)
+    sim_seed = int(seed) * 1_000_003 + int(i)
+    t0 = time.perf_counter()
+    trials, meta, rig = sim(effects, sim_seed, cfg["T"], cfg["fs"])
+    # ---- the diagnostic sees only the dataset (sealed manifest)
+    d = diagnose(Case(trials, meta, rig), n_boot=cfg["n_boot"], seed=seed, with_budget=False, ci_boot=0,
+                 thresholds=thresholds)
+    t_diag = time.perf_counter() - t0
+    # ---- counterfactual truth
+    names = sorted(effects)
+    cache: dict[frozenset, float] = {}
+
+    def err(S: frozenset) -> float:  # held-out error of the nominal model on data WITH effects S only
+        if S not in cache:
+            if S == frozenset(names):
+                cache[S] = d.verdict["score_before"]
+            else:
+                tr, me, rg = sim({k: effects[k] for k in S}, sim_seed, cfg["T"], cfg["fs"])
+                cache[S] = Evaluator(Case(tr, me, rg))(frozenset()).score
+        return cache[S]
+
+    true_shrink = stats.shapley_exact(names, lambda S: err(S) - err(frozenset())) if names else {}
+    e_all, e_null = err(frozenset(names)), err(frozenset())
+    gap = e_all - e_null
+    thr_present = max(0.10 * gap, 0.03 * e_all)
+    present = [n for n in names if true_shrink[n] > thr_present]
+    pts = d.verdict["shapley_pts"].get("mean", {})
+    rec = {
+        "case": int(i), "seed": int(seed), "tier": tier,
+        "manifest": {"effects": effects, "sim_seed": sim_seed},
+        "truth": {"present": present, "true_shrink": true_shrink, "error_with": e_all, "error_without": e_null,
+                  "gap": gap, "threshold_present": thr_present,
+                  "open_set": any(_family(n) == "open" for n in names)},
+        "prediction": {"effects": d.verdict["effects"], "families": d.verdict["families"],
+                       "shrink": {k: float(v) for k, v in pts.items()}, "unexplained": d.verdict["unexplained"],
+                       "screened": [s["effect"] for s in d.verdict["screened"]],
+                       "score_after_all": d.verdict["score_after_all"]},
+        "seconds": {"simulate_calibrate_diagnose": t_diag, "truth": time.perf_counter() - t0 - t_diag},
+    }
+    return rec
+
+
+def _top(pred: dict) -> str | None:
+    sh = pred["shrink"]
+    return max(sh, key=sh.get) if sh else None
+
+
+def score(records: list[dict]) -> dict:
+    """Benchmark scores (GAP_DIAGNOSIS.md sec. 4) from case records."""
+    R = records
+    lib = [r for r in R if not r["truth"]["open_set"]]
+    null = [r for r in lib if not r["manifest"]["effects"]]
+    with_present = [r for r in lib if r["truth"]["present"]]
+    no_present = [r for r in lib if not r["truth"]["present"]]
+    out: dict = {"n_cases": len(R), "n_effect_free": len(null), "n_with_present_effect": len(with_present)}
+    fa = [bool(r["prediction"]["effects"]) for r in null]
+    out["false_alarm_rate_effect_free"] = float(np.mean(fa)) if fa else float("nan")
+    fa2 = [bool(r["prediction"]["effects"]) for r in no_present]
+    out["false_alarm_rate_no_present_effect"] = float(np.mean(fa2)) if fa2 else float("nan")
+    top_m, top_f, set_m, set_f = [], [], [], []
+    for r in with_present:
+        pres = set(r["truth"]["present"])
+        top = _top(r["prediction"])
+        top_m.append(top in pres)
+        top_f.append(top is not None and _family(top) in {_family(p) for p in pres})
+        set_m.append(set(r["prediction"]["effects"]) == pres)
+        set_f.append(set(r["prediction"]["families"]) == {_family(p) for p in pres})
+    for k, v in {"family_top1": top_f, "member_top1": top_m, "family_set_accuracy": set_f,
+                 "member_set_accuracy": set_m}.items():
+        out[k] = float(np.mean(v)) if v else float("nan")
+    # shrink error for present effects whose family was detected: family-summed prediction vs truth
+    errs, errs_all = [], []
+    for r in with_present:
+        for p in r["truth"]["present"]:
+            tru = r["truth"]["true_shrink"][p]
+            fam = _family(p)
+            pred = sum(v for k, v in r["prediction"]["shrink"].items() if _family(k) == fam)
+            true_fam = sum(r["truth"]["true_shrink"][q] for q in r["truth"]["present"] if _family(q) == fam)
+            e = abs(pred - true_fam) / true_fam if true_fam > 0 else np.nan
+            errs_all.append(e)
+            if pred > 0:
+                errs.append(e)
+    out["median_shrink_error_detected"] = float(np.nanmedian(errs)) if errs else float("nan")
+    out["median_shrink_error_all_present"] = float(np.nanmedian(errs_all)) if errs_all else float("nan")
+    opn = [r for r in R if r["truth"]["open_set"] and r["truth"]["gap"] > r["truth"]["threshold_present"]
+           and r["truth"]["present"]]
+    out["n_open_set_present"] = len(opn)
+    out["open_set_flag_rate"] = float(np.mean([r["prediction"]["unexplained"] for r in opn])) if opn else float("nan")
+    out["open_set_misattributed_rate"] = float(np.mean([bool(r["prediction"]["effects"]) for r in opn])) if opn else float("nan")
+    # confusion (cases with exactly one present library effect)
+    single = [r for r in with_present if len(r["truth"]["present"]) == 1]
+    out["confusion_member"] = pd.crosstab(pd.Series([r["truth"]["present"][0] for r in single], name="true"),
+                                          pd.Series([_top(r["prediction"]) or "none" for r in single], name="predicted"))
+    out["confusion_family"] = pd.crosstab(pd.Series([_family(r["truth"]["present"][0]) for r in single], name="true"),
+                                          pd.Series([_family(_top(r["prediction"]) or "none") for r in single],
+                                                    name="predicted"))
+    # recall vs magnitude
+    rows = []
+    for r in lib:
+        for n, mag in r["manifest"]["effects"].items():
+            rows.append({"effect": n, "magnitude": mag, "present": n in r["truth"]["present"],
+                         "detected_member": n in r["prediction"]["effects"],
+                         "detected_family": _family(n) in r["prediction"]["families"]})
+    df = pd.DataFrame(rows, columns=["effect", "magnitude", "present", "detected_member", "detected_family"])
+    if len(df):
+        df["bin"] = pd.cut(df["magnitude"], [0.3, 1, 3, 10, 30.01], right=False).astype(str)
+        out["recall_vs_magnitude"] = df.groupby("bin").agg(n=("effect", "size"), present=("present", "mean"),
+                                                           recall_member=("detected_member", "mean"),
+                                                           recall_family=("detected_family", "mean")).reset_index()
+        pr = df[df["present"]]
+        out["recall_present_member"] = float(pr["detected_member"].mean()) if len(pr) else float("nan")
+        out["recall_present_family"] = float(pr["detected_family"].mean()) if len(pr) else float("nan")
+    secs = [r["seconds"]["simulate_calibrate_diagnose"] for r in R]
+    out["seconds_per_case_median"] = float(np.median(secs)) if secs else float("nan")
+    out["cases_per_second_per_core"] = float(1.0 / np.mean(secs)) if secs else float("nan")
+    return out
+
+
+TARGETS = {"family_top1": (">=", 0.95), "member_top1": (">=", 0.85), "false_alarm_rate_effect_free": ("<=", 0.05),
+           "median_shrink_error_detected": ("<=", 0.15), "open_set_flag_rate": (">=", 0.70)}
+
+
+def write_scores(sc: dict, out_dir: Path, command: str = "") -> None:
+    """scores.md + scores.csv (+ confusion and recall CSVs)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scal = {k: v for k, v in sc.items() if not isinstance(v, pd.DataFrame)}
+    pd.DataFrame([{"score": k, "value": v} for k, v in scal.items()]).to_csv(out_dir / "scores.csv", index=False)
+    lines = ["# Gap diagnostic benchmark", "", f"Command: `{command}`" if command else "", "",
+             "| score | value | target |", "|---|---|---|"]
+    for k, v in scal.items():
+        tgt = TARGETS.get(k)
+        ts = f"{tgt[0]} {tgt[1]}" if tgt else ""
+        lines.append(f"| {k} | {v:.3f} | {ts} |" if isinstance(v, float) else f"| {k} | {v} | {ts} |")
+    for k in ("confusion_family", "confusion_member", "recall_vs_magnitude"):
+        if k in sc and isinstance(sc[k], pd.DataFrame):
+            sc[k].to_csv(out_dir / f"{k}.csv")
+            lines += ["", f"## {k}", "", sc[k].to_markdown() if _has_tabulate() else "```\n" + sc[k].to_string() + "\n```"]
+    (out_dir / "scores.md").write_text("\n".join(lines) + "\n")
+
+
+def _has_tabulate() -> bool:
+    try:
+        import tabulate  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "") -> dict:
+    recs = [run_scenario(i, seed, tier) for i in range(n)]
+    sc = score(recs)
+    if out is not None:
+        out = Path(out)
+        (out / "scenarios").mkdir(parents=True, exist_ok=True)
+        for r in recs:
+            (out / "scenarios" / f"{r['case']}.json").write_text(json.dumps(r, indent=1, default=float))
+        write_scores(sc, out, command)
+    return sc
+
+
+def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95) -> dict:
+    """Null calibration: on effect-free simulations, the q-quantiles of the first forward-selection gain, of the
+    best confirmation gain, and of the generic model-error-model gain become the thresholds."""
+    from .diagnose import Screen
+    from .library import LIBRARY as LIB
+
+    cfg = TIERS[tier]
+    sim = simulator()
+    conf, gen = [], []
+    for i in range(n):
+        tr, me, rg = sim({}, int(seed) * 1_000_003 + 500_000 + i, cfg["T"], cfg["fs"])
+        d = diagnose(Case(tr, me, rg), n_boot=0, with_budget=False, ci_boot=0,
+                     thresholds={"confirm_rel": -1.0, "unexplained": 1e9}, max_effects=1)
+        conf.append(max(d.verdict["confirm_rel_gain"].values(), default=0.0))
+        gen.append(d.verdict["generic_cv_gain_before"])
+    return {"screen_member": 0.0, "confirm_rel": float(max(np.quantile(conf, q), 0.01)),
+            "unexplained": float(max(np.quantile(gen, q), 0.01)), "_n": n, "_seed": seed, "_tier": tier, "_q": q}
