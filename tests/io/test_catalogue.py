@@ -15,7 +15,7 @@ import yaml
 
 from selfsense.io import ContractError, load_dataset, validate_dataset
 
-from conftest import read_any, write_log, write_trials, TRIALS
+from io_factory import read_any, write_log, write_trials, TRIALS
 
 ANY = object()
 

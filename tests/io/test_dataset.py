@@ -10,7 +10,7 @@ from selfsense.io import (ContractError, load_dataset, load_rig, load_trials, re
                           validate_dataset)
 from selfsense.io.cli import main as validate_main
 
-from conftest import RIG, read_any, write_log
+from io_factory import RIG, read_any, write_log
 
 
 def test_load_rig_mirrors_yaml(dataset):

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from selfsense.io import ContractError, load_dataset, trial_signals, validate_dataset
 from selfsense.signals import prepare_trial
 
-from conftest import RIG, make_dataset
+from io_factory import RIG, make_dataset
 from test_catalogue import CASES
 
 SETTINGS = settings(max_examples=15, deadline=None, derandomize=True,
@@ -31,7 +31,7 @@ def valid_params(draw):
 
 
 def _trials(fmt):
-    from conftest import TRIALS
+    from io_factory import TRIALS
 
     return [(t, f.rsplit(".", 1)[0] + "." + fmt, *rest) for t, f, *rest in TRIALS]
 

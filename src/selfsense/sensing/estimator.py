@@ -216,7 +216,10 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
         "n_creep": int(n_creep),
     })
     report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
-    report["seconds"] = time.perf_counter() - t0
+    # wall-clock time goes to the log, never into an artefact (same input and config -> bit-identical JSON)
+    report.pop("seconds", None)
+    print(f"H(q) fit: {cfg.h_model}, {len(Q)} samples, {time.perf_counter() - t0:.2f} s, "
+          f"RMS {report['rms_pct']:.3f} % / max {report['max_pct']:.3f} % of range")
     report["h_model"] = cfg.h_model
     return model, report
 
