@@ -73,8 +73,8 @@ def engine(request):
             _say("local SLURM cluster is up" + (" (was already running; left running)" if already else ""))
         else:
             reason = f"cluster/start_local_slurm.sh failed (exit {rc}): " + " | ".join(err.strip().splitlines()[-5:])
-            # stop whatever part of the cluster did come up
-            request.addfinalizer(lambda: subprocess.run(["bash", str(STOP)], timeout=120))
+            if not already:  # stop whatever part of the cluster did come up
+                request.addfinalizer(lambda: subprocess.run(["bash", str(STOP)], timeout=120))
     if reason is None:
         return {"kind": "slurm", "profile": ROOT / "workflow/profiles/slurm-local", "reason": "", "started": started}
     msg = f"SLURM NOT USED: {reason}. Running through the cluster-generic executor (fake scheduler) instead."
