@@ -120,12 +120,7 @@ def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None
         if group is not None and group not in groups:
             raise ContractError(Problem(name, "group", None, f"a TDMS group {group!r} (groups: "
                                         + ", ".join(repr(g) for g in groups) + ")", "no such group"), str(path))
-        if group is not None:
-            search = [groups[group]]
-        elif len(groups) == 1:
-            search = list(groups.values())
-        else:
-            search = list(groups.values())
+        search = [groups[group]] if group is not None else list(groups.values())
         cols: dict[str, np.ndarray] = {}
         labels: dict[str, str] = {}
         probs: list[Problem] = []
