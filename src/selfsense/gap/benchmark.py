@@ -25,18 +25,109 @@ from .library import LIBRARY, effect
 __all__ = ["TIERS", "run_scenario", "score", "write_scores", "run_benchmark", "calibrate_thresholds", "simulator"]
 
 TIERS = {
-    "fast": {"T": 3.0, "fs": 400.0, "n_boot": 8},
-    "full": {"T": 6.0, "fs": 500.0, "n_boot": 30},
+    "fast": {"T": 4.0, "fs": 400.0, "n_boot": 8},
+    "full": {"T": 8.0, "fs": 500.0, "n_boot": 30},
 }
 
 
-def simulator() -> Callable:
+#: selfsense.sim effect name -> (library name, reference magnitude ~ a visible gap in the short scenario)
+SIM_EFFECTS = {
+    "creep": ("slow.creep", 0.02), "leakage": ("slow.leakage", 0.5), "offset_drift": ("slow.offset_drift", 1.0),
+    "dielectric_absorption": ("slow.absorption", 0.01), "temperature": ("slow.temperature", 1.0),
+    "mechanism_mode": ("rate.mechanism_mode", 0.5), "amplifier_limits": ("rate.amplifier", 1.0),
+    "virgin_curve": ("hysteresis.one_sided", 1.0), "preload": ("hysteresis.preload", 0.5),
+    "stress_hysteresis": ("load.stress_hysteresis", 0.05), "contact_nonlinearity": ("load.contact", 0.3),
+    "backlash": ("open.backlash", 20.0), "dead_zone": ("open.dead_zone", 2.0), "second_mode": ("open.second_mode", 0.2),
+}
+_LIB2SIM = {v[0]: k for k, v in SIM_EFFECTS.items()}
+
+
+def _ns(d):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**{k: _ns(v) if isinstance(v, dict) else v for k, v in d.items()})
+
+
+def _device_scenario(T: float, fs: float) -> list[dict]:
+    """Short in-memory protocol for the device simulator: free + blocked calibration, object / blocked validation."""
+    Tm = max(T, 6.0)
+    return [
+        {"trial": "cal_free", "role": "calibration", "tip": "free", "reference": "displacement", "signal": "sine",
+         "duration": T, "freq": 0.8, "rest_before_s": 5.0},
+        {"trial": "cal_blocked", "role": "calibration", "tip": "blocked", "reference": "force", "signal": "sine",
+         "duration": T, "freq": 0.8, "rest_before_s": 5.0},
+        {"trial": "val_disp", "role": "validation", "tip": "object", "object_mm": 4.0, "reference": "displacement",
+         "signal": "mixed", "duration": Tm, "freq": 0.8, "rest_before_s": 5.0},
+        {"trial": "val_force", "role": "validation", "tip": "object", "object_mm": 2.0, "reference": "force",
+         "signal": "mixed", "duration": Tm, "freq": 0.8, "rest_before_s": 5.0},
+        {"trial": "val_blocked", "role": "validation", "tip": "blocked", "reference": "force", "signal": "mixed",
+         "duration": Tm, "freq": 0.8, "rest_before_s": 5.0},
+    ]
+
+
+def simulate_device_case(effects: dict, seed: int, T: float = 4.0, fs: float = 500.0):
+    """In-memory case from the project's device simulator ``selfsense.sim`` (Preisach truth, physical effect
+    forms), converted through ``selfsense.io.to_si`` and ``selfsense.signals.prepare_trial`` exactly like a disk
+    dataset. ``effects`` use library names (``slow.leakage``...) with magnitudes relative to SIM_EFFECTS' reference."""
+    from selfsense.io import to_si
+    from selfsense.signals import prepare_trial
+    from selfsense.sim import load_device, rig_dict, simulate_scenario_in_memory
+
+    sim_eff = {}
+    for name, mag in effects.items():
+        sname = _LIB2SIM[name]
+        sim_eff[sname] = float(mag) * SIM_EFFECTS[sname][1]
+    trials_spec = _device_scenario(T, fs)
+    sc = {"name": "gap_bench", "seed": int(seed), "sample_rate_hz": fs, "substeps": 4, "effects_defaults": False,
+          "effects": sim_eff, "trials": trials_spec}
+    res = simulate_scenario_in_memory(sc, int(seed))
+    rig_d = rig_dict("gap_bench", load_device(), fs)
+    rig = _ns(rig_d)
+    trials, rows = {}, []
+    for spec in trials_spec:
+        log, _truth = res[spec["trial"]]
+        si = to_si(log, rig, spec["reference"])
+        trials[spec["trial"]] = prepare_trial(si, rig)
+        rows.append({"trial": spec["trial"], "file": spec["trial"] + ".parquet", "role": spec["role"],
+                     "tip": spec["tip"], "object_mm": spec.get("object_mm", np.nan), "reference": spec["reference"],
+                     "signal": spec["signal"]})
+    return trials, pd.DataFrame(rows).set_index("trial"), rig
+
+
+SIMULATORS = {"device": simulate_device_case}
+
+
+def simulator(kind: str = "device") -> Callable:
     """In-memory scenario simulator: (effects dict, seed, T, fs) -> (trials, meta, rig).
 
-    Uses :mod:`selfsense.gap.toysim` (the fast in-memory generator; its forms differ from the library, FORMS.md)."""
-    from .toysim import simulate_case
+    ``"device"``: the project's truth simulator ``selfsense.sim`` (default); ``"toy"``:
+    :mod:`selfsense.gap.toysim`, a small voltage-side-hysteresis tweezer. Both use forms that differ from the
+    library (FORMS.md)."""
+    if kind == "toy":
+        from .toysim import simulate_case
 
-    return simulate_case
+        return simulate_case
+    return SIMULATORS[kind]
+
+
+def draw_effects(rng: np.random.Generator, kind: str = "device", open_set_rate: float = 0.1) -> dict:
+    """0 effects ~20 %, 1 ~50 %, 2-3 ~20 %, open-set ~10 %; magnitudes log-uniform 0.3x-30x the reference."""
+    if kind == "toy":
+        from .toysim import draw_scenario
+
+        return draw_scenario(rng, open_set_rate)
+    lib = [v[0] for v in SIM_EFFECTS.values() if not v[0].startswith("open.")]
+    opn = [v[0] for v in SIM_EFFECTS.values() if v[0].startswith("open.")]
+    mag = lambda: float(np.exp(rng.uniform(np.log(0.3), np.log(30.0))))
+    u = rng.random()
+    if u < 0.2:
+        return {}
+    if u < 0.7:
+        return {str(rng.choice(lib)): mag()}
+    if u < 1 - open_set_rate:
+        k = int(rng.integers(2, 4))
+        return {str(e): mag() for e in rng.choice(lib, size=k, replace=False)}
+    return {str(rng.choice(opn)): float(np.exp(rng.uniform(np.log(1.0), np.log(30.0))))}
 
 
 def _family(name: str) -> str:
@@ -44,20 +135,21 @@ def _family(name: str) -> str:
 
 
 def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = None,
-                 thresholds: dict | None = None) -> dict:
+                 thresholds: dict | None = None, sim_kind: str = "device") -> dict:
     """One benchmark case; returns a JSON-able record (manifest, truth, prediction, timing)."""
     cfg = TIERS[tier]
-    sim = simulator()
-    from .toysim import draw_scenario
-
+    sim = simulator(sim_kind)
     rng = np.random.default_rng([seed, i, 7])
-    effects = draw_scenario(rng) if effects is None else dict(effects)
+    effects = draw_effects(rng, sim_kind) if effects is None else dict(effects)
     sim_seed = int(seed) * 1_000_003 + int(i)
     t0 = time.perf_counter()
     trials, meta, rig = sim(effects, sim_seed, cfg["T"], cfg["fs"])
     # ---- the diagnostic sees only the dataset (sealed manifest)
+    from .diagnose import load_thresholds
+
+    thr = {**load_thresholds(sim_kind), **(thresholds or {})}
     d = diagnose(Case(trials, meta, rig), n_boot=cfg["n_boot"], seed=seed, with_budget=False, ci_boot=0,
-                 thresholds=thresholds)
+                 thresholds=thr)
     t_diag = time.perf_counter() - t0
     # ---- counterfactual truth
     names = sorted(effects)
@@ -80,7 +172,7 @@ def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = N
     pts = d.verdict["shapley_pts"].get("mean", {})
     rec = {
         "case": int(i), "seed": int(seed), "tier": tier,
-        "manifest": {"effects": effects, "sim_seed": sim_seed},
+        "manifest": {"effects": effects, "sim_seed": sim_seed, "simulator": sim_kind},
         "truth": {"present": present, "true_shrink": true_shrink, "error_with": e_all, "error_without": e_null,
                   "gap": gap, "threshold_present": thr_present,
                   "open_set": any(_family(n) == "open" for n in names)},
@@ -200,8 +292,9 @@ def _has_tabulate() -> bool:
         return False
 
 
-def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "") -> dict:
-    recs = [run_scenario(i, seed, tier) for i in range(n)]
+def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "",
+                  sim_kind: str = "device") -> dict:
+    recs = [run_scenario(i, seed, tier, sim_kind=sim_kind) for i in range(n)]
     sc = score(recs)
     if out is not None:
         out = Path(out)
@@ -212,14 +305,14 @@ def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None
     return sc
 
 
-def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95) -> dict:
+def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95, sim_kind: str = "device") -> dict:
     """Null calibration: on effect-free simulations, the q-quantiles of the first forward-selection gain, of the
     best confirmation gain, and of the generic model-error-model gain become the thresholds."""
     from .diagnose import Screen
     from .library import LIBRARY as LIB
 
     cfg = TIERS[tier]
-    sim = simulator()
+    sim = simulator(sim_kind)
     conf, gen = [], []
     for i in range(n):
         tr, me, rg = sim({}, int(seed) * 1_000_003 + 500_000 + i, cfg["T"], cfg["fs"])

@@ -31,11 +31,14 @@ _COL = {"displacement": ("dx_ref", "dx_hat"), "force": ("f_ref", "f_hat")}
 DEFAULT_THRESHOLDS = {"screen_member": 0.0, "confirm_rel": 0.05, "unexplained": 0.10}
 
 
-def load_thresholds() -> dict:
-    """Thresholds calibrated on effect-free simulations (package data ``thresholds.json``)."""
+def load_thresholds(kind: str = "device") -> dict:
+    """Thresholds calibrated on effect-free simulations (package data ``thresholds.json``; the command that made
+    them is stored beside them). ``kind``: "device" (selfsense.sim, the default) or "toy" (toysim)."""
     try:
         txt = resources.files("selfsense.gap").joinpath("thresholds.json").read_text()
         d = json.loads(txt)
+        if kind != "device" and kind in d:
+            d = d[kind]
         return {**DEFAULT_THRESHOLDS, **d.get("thresholds", {})}
     except (FileNotFoundError, json.JSONDecodeError):
         return dict(DEFAULT_THRESHOLDS)
@@ -626,64 +629,83 @@ def sensitivity_rows(case: Case, ev: Evaluator, base: Evaluation) -> list[dict]:
 
 
 def stage_budget_rows(case: Case, ev: Evaluator, base: Evaluation) -> list[dict]:
-    """Simulated data only: substitute the true charge, true V_H and true (oracle) coefficients for the model
-    blocks in all 2^3 combinations; Shapley share of each stage in the held-out error (no refit needed)."""
-    from .model import rig_params
+    """Simulated data only (truth folder): substitute true blocks for model blocks in all 2^3 combinations and
+    report each stage's exact Shapley share of the held-out error.
 
+    Blocks: ``charge`` (true q instead of the measured, eq. 57), ``hysteresis`` (true V_p instead of
+    V - H(q), eqs. 27/55), ``coefficients`` (oracle least squares of the true tip signals on the chosen (Q, V_p)
+    over all trials, instead of the calibration regression of eq. 52 rows on the same inputs). The coefficient
+    block is always re-derived for the chosen inputs so every combination is self-consistent.
+    """
     model = base.model
     truth = case.truth
     stages = ("charge", "hysteresis", "coefficients")
-    p = rig_params(case.rig)
-    # oracle coefficients: least squares of the true tip signals on the true (Q, V_p) over all trials
-    Xd, yd, Xf, yf = [], [], [], []
-    for tid in case.meta.index:
-        tr = truth.get(tid)
-        if tr is None:
-            continue
-        X = np.column_stack([tr["q"].to_numpy(float), tr["V_p"].to_numpy(float)])
-        Xd.append(X); yd.append(tr["dx_tip"].to_numpy(float)); Xf.append(X); yf.append(tr["f_tip"].to_numpy(float))
-    cd_true = np.linalg.lstsq(np.vstack(Xd), np.concatenate(yd), rcond=None)[0]
-    cf_true = np.linalg.lstsq(np.vstack(Xf), np.concatenate(yf), rcond=None)[0]
-    c = model.coef_
-    cd_mod, cf_mod = np.array([c["A1"], c["A2"]]), np.array([c["B21"], c["B22"]])
 
-    def err(S):
-        out = {}
-        for m, trows in ev.rows.items():
-            parts = []
-            for tid, mask, ref in trows:
-                df, tr = case.trials[tid], truth[tid]
-                n = min(len(df), len(tr))
-                Q = tr["q"].to_numpy(float)[:n] if "charge" in S else df["q"].to_numpy(float)[:n]
-                V = df["V"].to_numpy(float)[:n]
-                if "hysteresis" in S:
-                    Vp = tr["V_p"].to_numpy(float)[:n] + (V - tr["V"].to_numpy(float)[:n])
-                else:
-                    Vp = V - model.hysteresis_(Q) if hasattr(model, "hysteresis_") and callable(model.hysteresis_) else V
-                X = np.column_stack([Q, Vp])
-                coef = (cd_true if m == "displacement" else cf_true) if "coefficients" in S else (
-                    cd_mod if m == "displacement" else cf_mod)
-                est = X @ coef
-                parts.append(((est - ref[:n]) / ev.ranges[m] * 100)[mask[:n]])
-            out[m] = float(np.mean(np.abs(np.concatenate(parts)))) if parts else np.nan
-        return out
+    def inputs(tid, S):
+        df, tr = case.trials[tid], truth[tid]
+        n = min(len(df), len(tr))
+        Q = tr["q"].to_numpy(float)[:n] if "charge" in S else df["q"].to_numpy(float)[:n]
+        if "hysteresis" in S:
+            Vp = tr["V_p"].to_numpy(float)[:n]
+        else:
+            Vp = df["V"].to_numpy(float)[:n] - model.hysteresis_(Q)
+        return np.column_stack([Q, Vp]), n
 
-    cache = {}
+    def coefs(S):
+        Xd, yd, Xf, yf = [], [], [], []
+        oracle = "coefficients" in S
+        for tid, row in case.meta.iterrows():
+            if tid not in truth or (not oracle and row["role"] != "calibration"):
+                continue
+            X, n = inputs(tid, S)
+            df, tr = case.trials[tid], truth[tid]
+            act = active(df)[:n]
+            if oracle:
+                Xd.append(X[act]); yd.append(tr["dx_tip"].to_numpy(float)[:n][act])
+                Xf.append(X[act]); yf.append(tr["f_tip"].to_numpy(float)[:n][act])
+                continue
+            if row["reference"] == "displacement":
+                r = df["dx_ref"].to_numpy(float)[:n]; ok = act & np.isfinite(r)
+                Xd.append(X[ok]); yd.append(r[ok])
+            if row["tip"] == "blocked":
+                Xd.append(X[act]); yd.append(np.zeros(act.sum()))
+            if row["reference"] == "force":
+                r = df["f_ref"].to_numpy(float)[:n]; ok = act & np.isfinite(r)
+                Xf.append(X[ok]); yf.append(r[ok])
+            if row["tip"] == "free":
+                Xf.append(X[act]); yf.append(np.zeros(act.sum()))
+        from .model import _lstsq
+
+        return _lstsq(np.vstack(Xd), np.concatenate(yd)), _lstsq(np.vstack(Xf), np.concatenate(yf))
+
+    cache: dict = {}
 
     def E(S):
+        S = frozenset(S)
         if S not in cache:
-            cache[S] = err(S)
+            cd, cf = coefs(S)
+            out = {}
+            for m, trows in ev.rows.items():
+                parts = []
+                for tid, mask, ref in trows:
+                    X, n = inputs(tid, S)
+                    est = X @ (cd if m == "displacement" else cf)
+                    parts.append(((est - ref[:n]) / ev.ranges[m] * 100)[mask[:n]])
+                out[m] = float(np.mean(np.abs(np.concatenate(parts)))) if parts else np.nan
+            cache[S] = out
         return cache[S]
 
     rows = []
     for m in ev.rows:
         if not ev.rows[m]:
             continue
-        phi = stats.shapley_exact(stages, lambda S: E(frozenset()) [m] - E(frozenset(S))[m])
+        phi = stats.shapley_exact(stages, lambda S: E(frozenset())[m] - E(S)[m])
         tot = E(frozenset())[m]
-        for s in stages:
-            rows.append({"section": "stage", "item": s, "measurement": m, "value": phi[s],
-                         "share": phi[s] / tot if tot else np.nan, "n": np.nan, "unit": "% of range (Shapley)"})
+        rows.append({"section": "stage", "item": "error with all model blocks (2-coefficient rows)", "measurement": m,
+                     "value": tot, "share": 1.0, "n": np.nan, "unit": "% of range"})
+        for s_ in stages:
+            rows.append({"section": "stage", "item": s_, "measurement": m, "value": phi[s_],
+                         "share": phi[s_] / tot if tot else np.nan, "n": np.nan, "unit": "% of range (Shapley)"})
         rows.append({"section": "stage", "item": "remainder with all true blocks", "measurement": m,
                      "value": E(frozenset(stages))[m], "share": E(frozenset(stages))[m] / tot if tot else np.nan,
                      "n": np.nan, "unit": "% of range"})

@@ -1,0 +1,114 @@
+"""``selfsense gap ...``: the sim-to-real gap diagnostic and its blind benchmark.
+
+  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator fast|sensing] [--seed S] [--n-boot B]
+  selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full]
+  selfsense gap scenario --i I --seed S --out FILE.json [--tier fast|full]      (one benchmark case)
+  selfsense gap aggregate SCENARIO_JSON... --out DIR                            (scores from case files)
+  selfsense gap calibrate --n N --seed S --out thresholds.json [--tier fast]    (null-calibrated thresholds)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+def _diagnose(a) -> int:
+    from .api import run_diagnose
+
+    d = run_diagnose(a.dataset_dir, a.out, estimator=a.estimator, seed=a.seed, n_boot=a.n_boot,
+                     figures=not a.no_figures)
+    v = d.verdict
+    print(f"gap diagnose {a.dataset_dir}: effects={v['effects']} unexplained={v['unexplained']} "
+          f"error {v['score_before']:.2f} -> {v['score_after_all']:.2f} % of range; wrote {a.out}")
+    return 0
+
+
+def _benchmark(a) -> int:
+    from .benchmark import run_benchmark
+
+    t0 = time.perf_counter()
+    cmd = f"selfsense gap benchmark --n {a.n} --seed {a.seed} --tier {a.tier} --out {a.out}"
+    if a.sim != "device":
+        cmd += f" --sim {a.sim}"
+    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim)
+    dt = time.perf_counter() - t0
+    print(f"{a.n} cases in {dt:.1f} s; family_top1={sc['family_top1']:.3f} member_top1={sc['member_top1']:.3f} "
+          f"false_alarm={sc['false_alarm_rate_effect_free']:.3f} -> {a.out}/scores.md")
+    return 0
+
+
+def _scenario(a) -> int:
+    from .benchmark import run_scenario
+
+    from .api import run_scenario_to_json
+
+    run_scenario_to_json(a.i, a.seed, a.tier, a.out)
+    return 0
+
+
+def _aggregate(a) -> int:
+    from .api import aggregate_scenarios
+
+    aggregate_scenarios(a.files, a.out)
+    return 0
+
+
+def _calibrate(a) -> int:
+    from .benchmark import calibrate_thresholds
+
+    thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim)
+    doc = {"thresholds": {k: v for k, v in thr.items() if not k.startswith("_")},
+           "calibration": {"n_null": a.n, "seed": a.seed, "tier": a.tier, "quantile": thr["_q"],
+                           "command": f"selfsense gap calibrate --n {a.n} --seed {a.seed} --tier {a.tier} --out {a.out}"}}
+    Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps(doc, indent=1))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="selfsense gap", description="sim-to-real gap diagnostic (GAP_DIAGNOSIS.md)")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)")
+    d.add_argument("dataset_dir")
+    d.add_argument("--out", required=True)
+    d.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--n-boot", type=int, default=30)
+    d.add_argument("--no-figures", action="store_true")
+    d.set_defaults(fn=_diagnose)
+    b = sub.add_parser("benchmark", help="blind benchmark on simulated scenarios")
+    b.add_argument("--n", type=int, required=True)
+    b.add_argument("--seed", type=int, required=True)
+    b.add_argument("--out", required=True)
+    b.add_argument("--tier", choices=["fast", "full"], default="fast")
+    b.add_argument("--sim", choices=["device", "toy"], default="device",
+                   help="device: selfsense.sim (default); toy: selfsense.gap.toysim")
+    b.set_defaults(fn=_benchmark)
+    s = sub.add_parser("scenario", help="one benchmark case -> JSON")
+    s.add_argument("--i", type=int, required=True)
+    s.add_argument("--seed", type=int, required=True)
+    s.add_argument("--out", required=True)
+    s.add_argument("--tier", choices=["fast", "full"], default="fast")
+    s.set_defaults(fn=_scenario)
+    g = sub.add_parser("aggregate", help="scores from scenario JSON files")
+    g.add_argument("files", nargs="+")
+    g.add_argument("--out", required=True)
+    g.set_defaults(fn=_aggregate)
+    c = sub.add_parser("calibrate", help="null-calibrated thresholds")
+    c.add_argument("--n", type=int, default=20)
+    c.add_argument("--seed", type=int, default=1)
+    c.add_argument("--tier", choices=["fast", "full"], default="fast")
+    c.add_argument("--out", required=True)
+    c.add_argument("--sim", choices=["device", "toy"], default="device")
+    c.set_defaults(fn=_calibrate)
+    a = p.parse_args(argv)
+    return int(a.fn(a) or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

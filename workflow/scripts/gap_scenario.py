@@ -1,0 +1,8 @@
+"""Thin wrapper: one blind benchmark case -> JSON (selfsense.gap.api.run_scenario_to_json)."""
+import contextlib
+
+from selfsense.gap.api import run_scenario_to_json
+
+with open(snakemake.log[0], "w") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):  # noqa: F821
+    run_scenario_to_json(int(snakemake.wildcards.i), int(snakemake.params.seed), snakemake.params.tier,  # noqa: F821
+                         snakemake.output[0])  # noqa: F821
