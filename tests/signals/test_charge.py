@@ -172,7 +172,7 @@ def test_sliding_dc_offset_fig24():
 
 
 def _load_io_conftest():
-    spec = importlib.util.spec_from_file_location("_io_synth", Path(__file__).parents[1] / "io" / "conftest.py")
+    spec = importlib.util.spec_from_file_location("_io_synth", Path(__file__).parents[1] / "io" / "io_factory.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
