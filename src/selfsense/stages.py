@@ -35,14 +35,37 @@ def sensing_config(config: Mapping[str, Any]) -> SensingConfig:
     return SensingConfig.from_mapping(merged)
 
 
-def validate(dataset_dir: str | Path, out_json: str | Path) -> dict:
-    """Check the whole dataset against DATA_FORMAT.md; raise ``ContractError`` listing every problem."""
+def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = "fail") -> dict:
+    """Check the whole dataset against DATA_FORMAT.md.
+
+    Problems of ``rig.yaml`` / ``trials.csv`` or of a calibration trial's log always raise ``ContractError`` listing
+    every problem. Problems confined to one validation trial's log raise too with ``on_bad_trial="fail"`` (default);
+    with ``"skip"`` that trial is recorded as failed (with its problems) in ``out_json`` and left out of the run,
+    and the report lists it.
+    """
+    if on_bad_trial not in ("fail", "skip"):
+        raise ValueError(f"on_bad_trial: expected 'fail' or 'skip', found {on_bad_trial!r}")
     problems = sio.validate_dataset(dataset_dir)
-    if problems:
+    try:
+        meta = _meta(dataset_dir)
+    except sio.ContractError:
+        raise sio.ContractError(problems) from None
+    file_to_trial = {str(Path(str(f))): t for t, f in meta["file"].items()}
+    per_trial: dict[str, list[str]] = {}
+    fatal = []
+    for p in problems:
+        trial = file_to_trial.get(str(Path(str(p.file))))
+        if trial is None or on_bad_trial == "fail" or meta.loc[trial, "role"] == "calibration":
+            fatal.append(p)
+        else:
+            per_trial.setdefault(trial, []).append(str(p))
+    if fatal:
         raise sio.ContractError(problems)
-    meta = _meta(dataset_dir)
-    summary = {"dataset": Path(dataset_dir).name, "valid": True, "n_trials": int(len(meta)),
-               "trials": sorted(meta.index.tolist())}
+    valid = sorted(t for t in meta.index if t not in per_trial)
+    summary = {"dataset": Path(dataset_dir).name, "valid": not per_trial, "n_trials": int(len(meta)),
+               "trials": valid, "failed": {t: per_trial[t] for t in sorted(per_trial)}}
+    for t, msgs in summary["failed"].items():
+        print(f"trial {t!r} failed validation and is left out (on_bad_trial=skip):", *msgs, sep="\n  ")
     sio.write_json_atomic(summary, out_json)
     return summary
 

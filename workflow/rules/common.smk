@@ -18,7 +18,13 @@ def trials_table(dataset):
 
 
 def all_trials(dataset):
-    return sorted(trials_table(dataset).index)
+    """Trials that passed validation (checkpoint validate_dataset; with on_bad_trial=skip a bad validation
+    trial is left out and listed as failed in the report)."""
+    import json
+
+    path = checkpoints.validate_dataset.get(dataset=dataset).output[0]
+    with open(path) as fh:
+        return list(json.load(fh)["trials"])
 
 
 def calibration_trials(dataset):

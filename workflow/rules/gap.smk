@@ -1,10 +1,11 @@
 # Sim-to-real gap diagnostic (GAP_DIAGNOSIS.md; code in src/selfsense/gap, docs/gap.md).
 # Included by the Snakefile. `gap_diagnose` runs per dataset (the report uses its verdict);
 # `gap_benchmark` is a campaign target, NOT part of the default run:
-#     snakemake --cores 2 gap_benchmark --config gap_benchmark='{n: 200, seed: 1, tier: full}'
+#     snakemake --cores 2 gap_benchmark            (n, seed, tier from config["gap"]["benchmark"], defaults below)
+#     e.g. in config.yaml:  gap: {enabled: true, benchmark: {n: 200, seed: 1, tier: full}}
 import os
 
-GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", **config.get("gap_benchmark", {})}
+GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", **config.get("gap", {}).get("benchmark", {})}
 
 
 def gap_raw_inputs(wildcards):

@@ -1,14 +1,16 @@
 # The main DAG (ARCHITECTURE.md): validate -> ingest -> calibrate H(q) -> regress A -> estimate -> score -> figures -> report
 
 
-rule validate_dataset:
+checkpoint validate_dataset:
     input:
         rig=RAW + "/{dataset}/rig.yaml",
         trials=RAW + "/{dataset}/trials.csv",
+        logs=lambda w: [os.path.join(RAW, w.dataset, str(f)) for f in trials_table(w.dataset)["file"]],
     output:
         RESULTS + "/{dataset}/validation.json",
     params:
         dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        on_bad_trial=config.get("on_bad_trial", "fail"),
     log:
         RESULTS + "/{dataset}/logs/validate.log",
     benchmark:

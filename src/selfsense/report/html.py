@@ -50,8 +50,13 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str
         "Errors are mean absolute errors and, per trial, in % of that trial's reference range; Table 3 averages the "
         "validation trials.</p>",
     ]
+    vpath = results_dir / "validation.json"
+    if vpath.exists():
+        for trial, msgs in json.loads(vpath.read_text()).get("failed", {}).items():
+            failed = list(failed) + [f"{trial}: " + "; ".join(msgs)]
     if failed:
-        parts.append("<h2>Failed trials</h2><ul>" + "".join(f"<li>{html.escape(f)}</li>" for f in failed) + "</ul>")
+        parts.append("<h2>Failed trials</h2><p>Left out of every table and figure:</p><ul>"
+                     + "".join(f"<li>{html.escape(f)}</li>" for f in failed) + "</ul>")
     tables = results_dir / "tables"
     parts.append("<h2>Accuracy (thesis Table 3 / paper Table II)</h2>")
     for md in ("table3.md", "modes.md", "per_trial.md"):
