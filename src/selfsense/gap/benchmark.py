@@ -65,7 +65,7 @@ def _device_scenario(T: float, fs: float) -> list[dict]:
     ]
 
 
-def simulate_device_case(effects: dict, seed: int, T: float = 4.0, fs: float = 500.0):
+def simulate_device_case(effects: dict, seed: int, T: float = 4.0, fs: float = 500.0, with_truth: bool = False):
     """In-memory case from the project's device simulator ``selfsense.sim`` (Preisach truth, physical effect
     forms), converted through ``selfsense.io.to_si`` and ``selfsense.signals.prepare_trial`` exactly like a disk
     dataset. ``effects`` use library names (``slow.leakage``...) with magnitudes relative to SIM_EFFECTS' reference."""
@@ -83,15 +83,18 @@ def simulate_device_case(effects: dict, seed: int, T: float = 4.0, fs: float = 5
     res = simulate_scenario_in_memory(sc, int(seed))
     rig_d = rig_dict("gap_bench", load_device(), fs)
     rig = _ns(rig_d)
-    trials, rows = {}, []
+    trials, rows, truth = {}, [], {}
     for spec in trials_spec:
-        log, _truth = res[spec["trial"]]
+        log, truth[spec["trial"]] = res[spec["trial"]]
         si = to_si(log, rig, spec["reference"])
         trials[spec["trial"]] = prepare_trial(si, rig)
         rows.append({"trial": spec["trial"], "file": spec["trial"] + ".parquet", "role": spec["role"],
                      "tip": spec["tip"], "object_mm": spec.get("object_mm", np.nan), "reference": spec["reference"],
                      "signal": spec["signal"]})
-    return trials, pd.DataFrame(rows).set_index("trial"), rig
+    meta = pd.DataFrame(rows).set_index("trial")
+    if with_truth:
+        return trials, meta, rig, truth
+    return trials, meta, rig
 
 
 SIMULATORS = {"device": simulate_device_case}
@@ -313,12 +316,18 @@ def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95,
 
     cfg = TIERS[tier]
     sim = simulator(sim_kind)
-    conf, gen = [], []
+    conf, gen, per = [], [], {}
     for i in range(n):
         tr, me, rg = sim({}, int(seed) * 1_000_003 + 500_000 + i, cfg["T"], cfg["fs"])
         d = diagnose(Case(tr, me, rg), n_boot=0, with_budget=False, ci_boot=0,
-                     thresholds={"confirm_rel": -1.0, "unexplained": 1e9}, max_effects=1)
-        conf.append(max(d.verdict["confirm_rel_gain"].values(), default=0.0))
+                     thresholds={"screen_member": -1e9, "confirm_rel": 1e9, "confirm_rel_member": {},
+                                 "unexplained": 1e9}, max_effects=1)
+        rel = d.verdict["confirm_rel_gain"]
+        conf.append(max(rel.values(), default=0.0))
+        for k, v in rel.items():
+            per.setdefault(k, []).append(v)
         gen.append(d.verdict["generic_cv_gain_before"])
-    return {"screen_member": 0.0, "confirm_rel": float(max(np.quantile(conf, q), 0.01)),
-            "unexplained": float(max(np.quantile(gen, q), 0.01)), "_n": n, "_seed": seed, "_tier": tier, "_q": q}
+    floor = 0.01
+    return {"screen_member": -1e9, "confirm_rel": float(max(np.quantile(conf, q), floor)),
+            "confirm_rel_member": {k: float(max(np.quantile(v, q), floor)) for k, v in sorted(per.items())},
+            "unexplained": float(max(np.quantile(gen, q), floor)), "_n": n, "_seed": seed, "_tier": tier, "_q": q}

@@ -71,6 +71,12 @@ def _calibrate(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import os
+
+    # the diagnostic's linear algebra is many tiny problems: one BLAS thread per process is fastest, and the
+    # benchmark scales out by processes (one Snakemake job per case). Only effective before numpy is imported.
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     p = argparse.ArgumentParser(prog="selfsense gap", description="sim-to-real gap diagnostic (GAP_DIAGNOSIS.md)")
     sub = p.add_subparsers(dest="cmd", required=True)
     d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)")

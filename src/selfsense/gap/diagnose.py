@@ -278,7 +278,7 @@ def _family_first(screen: Screen, thr: float, max_k: int, weights=None) -> list[
 
 def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None, n_boot: int = 30,
              seed: int = 0, max_effects: int = 3, with_budget: bool = True, ci_boot: int = 200,
-             max_candidates: int = 6, **est_kw) -> Diagnosis:
+             max_candidates: int = 14, **est_kw) -> Diagnosis:
     """Run the whole diagnostic on one dataset (no truth needed; the truth folder only adds the stage budget).
 
     Returns :class:`Diagnosis` with the contract tables (attribution, budget, shrink) and the verdict.
@@ -318,18 +318,27 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
             vals.append(float(c @ sums) / max(float(c @ cnt), 1.0))
         return float(np.mean(vals)) if vals else float("nan")
 
+    member_thr = thr.get("confirm_rel_member", {}) or {}
+
+    def _thr(c):
+        return float(member_thr.get(c, thr["confirm_rel"]))
+
     def greedy(w=None):
         cur, path, rels = frozenset(), [], []
         s0 = score_w(cur, w)
         cur_s = s0
         while len(path) < max_effects:
             opts = [c for c in cands if c not in cur]
+            if w is not None:  # bootstrap replicates re-use the refits of the main path (no new fits)
+                opts = [c for c in opts if frozenset(cur | {c}) in ev.cache]
             if not opts:
                 break
             sc = {c: score_w(cur | {c}, w) for c in opts}
-            best = min(sc, key=sc.get)
+            # margin over the member's own null threshold (calibrated on effect-free simulations)
+            margin = {c: ((cur_s - sc[c]) / s0 if s0 > 0 else 0.0) - _thr(c) for c in opts}
+            best = max(margin, key=margin.get)
             rel = (cur_s - sc[best]) / s0 if s0 > 0 else 0.0
-            if rel <= thr["confirm_rel"]:
+            if margin[best] <= 0:
                 break
             cur, cur_s = cur | {best}, sc[best]
             path.append(best)

@@ -121,6 +121,22 @@ def g_few_ops(df, ref_scale: float | None = None, n: int = 12):
 
 # --------------------------------------------------------------------------- augmentations (CONTRACTS protocol)
 
+_NOMINAL: dict = {}
+
+
+def nominal_fit(trials, meta, rig):
+    """Nominal fast estimator on these calibration trials (cached on the identity of the trial frames, so the
+    many augmentations of one diagnosis share one private nominal fit; pure function of its inputs)."""
+    from .model import FastSensingEstimator
+
+    key = (tuple((k, id(v)) for k, v in trials.items()), tuple(meta.index), id(rig))
+    if key not in _NOMINAL:
+        if len(_NOMINAL) > 16:
+            _NOMINAL.clear()
+        _NOMINAL[key] = (FastSensingEstimator(rig=rig).fit(trials, meta), trials, meta, rig)  # keep refs alive
+    return _NOMINAL[key][0]
+
+
 
 @dataclass
 class HCorrection:
@@ -259,9 +275,7 @@ class OutputAug:
     fn: Callable
 
     def fit(self, trials, meta, estimator) -> None:
-        from .model import FastSensingEstimator
-
-        self._base = FastSensingEstimator(rig=estimator.rig).fit(trials, meta)
+        self._base = nominal_fit(trials, meta, estimator.rig)
         any_df = next(iter(trials.values()))
         self.feature_names = tuple(f"g{j}" for j in range(self._cols(any_df).shape[1]))
 
