@@ -139,16 +139,18 @@ def score(dataset_dir: str | Path, estimate_paths: Mapping[str, str | Path], out
 
 def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], config: Mapping[str, Any],
                   out_csv: str | Path, out_md: str | Path) -> pd.DataFrame:
-    """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23), same data and settings."""
+    """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23) and both H(q) model families
+    (Kuhnen's modified PI with creep, thesis eqs. 36-43; RI model of the third seed + creep bank, fitted jointly on
+    all free-tip calibration trials), same data and other settings."""
     from selfsense.report import tables
 
     rig = sio.load_rig(dataset_dir)
     meta = _meta(dataset_dir)
     sigs = _load_signals(signal_paths)
     rows = []
-    for mode in ("thesis", "onsite"):
+    for h_model, mode in (("modified_pi", "thesis"), ("modified_pi", "onsite"), ("ri", "thesis"), ("ri", "onsite")):
         cfg = dict(config)
-        cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode)
+        cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model)
         est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
         ests = {}
         for t, s in sigs.items():
@@ -157,23 +159,31 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
             ests[t] = e
         t3 = tables.table3(tables.per_trial_table(ests, meta.reset_index()))
         for _, r in t3.iterrows():
-            rows.append({"h_mode": mode, "measurement": r["measurement"], "mean_abs_error": r["mean_abs_error"],
+            rows.append({"h_model": h_model, "h_mode": mode, "measurement": r["measurement"],
+                         "mean_abs_error": r["mean_abs_error"],
                          "percent_of_range": r["percent_of_range"], "n_trials": r["n_trials"],
                          "h_fit_rms_pct": est.fit_report_["hysteresis"].get("rms_pct", float("nan"))})
     df = pd.DataFrame(rows)
     sio.write_text_atomic(df.to_csv(index=False, float_format="%.6g"), out_csv)
-    lines = ["### Table 3 for both H(q) calibration modes", "",
-             "| H(q) calibration | measurement | % of range (validation mean) | trials |", "|---|---|---|---|"]
+    lines = ["### Table 3 for both H(q) calibration modes and both H(q) model families", "",
+             "| H(q) model | H(q) calibration | displacement, % of range | force, % of range | H fit RMS, % |",
+             "|---|---|---|---|---|"]
     label = {"thesis": "thesis eq. (55)", "onsite": "on-site, paper eq. (23)"}
-    for _, r in df.iterrows():
-        lines.append(f"| {label[r['h_mode']]} | {r['measurement']} | {r['percent_of_range']:.2f} % | {r['n_trials']} |")
+    mlabel = {"modified_pi": "modified PI + creep (thesis eqs. 36-43)", "ri": "RI (third seed) + creep bank"}
+    for (h_model, mode), g in df.groupby(["h_model", "h_mode"], sort=False):
+        g = g.set_index("measurement")
+        lines.append(f"| {mlabel[h_model]} | {label[mode]} | {g.loc['displacement', 'percent_of_range']:.2f} | "
+                     f"{g.loc['force', 'percent_of_range']:.2f} | {g['h_fit_rms_pct'].iloc[0]:.3f} |")
     sio.write_text_atomic("\n".join(lines) + "\n", out_md)
     return df
 
 
 def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
-            estimate_paths: Mapping[str, str | Path], per_trial_csv: str | Path, out_dir: str | Path) -> dict:
-    """Regenerate the papers' figures; returns {figure stem: caption} (also written to captions.json)."""
+            internals_paths: Mapping[str, str | Path], per_trial_csv: str | Path, out_dir: str | Path) -> dict:
+    """Regenerate the papers' figures; returns {figure stem: caption} (also written to captions.json).
+
+    ``internals_paths`` are the full estimate frames written by :func:`estimate` (``full_out``: raw and
+    post-processed estimates, V_p, V_H, q and the references)."""
     from selfsense.report import figures as F
     from selfsense.sensing.estimator import _eval_h, h_target
 
@@ -189,12 +199,7 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
     rep = est.fit_report_["hysteresis"]
     caps["fig21_h_calibration"] = F.fig_h_calibration(sig_free, Ht, Hf, out_dir, free_trial,
                                                       rep.get("rms_pct", np.nan), rep.get("max_pct", np.nan))
-    full = {}
-    for t in estimate_paths:
-        e = est.estimate(pd.read_parquet(signal_paths[t]))
-        s = pd.read_parquet(signal_paths[t])
-        e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
-        full[t] = e
+    full = {t: pd.read_parquet(p) for t, p in internals_paths.items()}
     disp = [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement" and meta.loc[t, "role"] == "validation"]
     disp = disp or [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement"]
     if disp:

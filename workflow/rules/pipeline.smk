@@ -90,7 +90,8 @@ rule estimate:
         signals=RESULTS + "/{dataset}/signals/{trial}.parquet",
         model=RESULTS + "/{dataset}/model/sensing.json",
     output:
-        RESULTS + "/{dataset}/estimates/{trial}.parquet",
+        estimate=RESULTS + "/{dataset}/estimates/{trial}.parquet",
+        internals=RESULTS + "/{dataset}/internals/{trial}.parquet",
     params:
         dataset_dir=lambda w: os.path.join(RAW, w.dataset),
     log:
@@ -153,7 +154,7 @@ rule compare_modes:
 rule figures:
     input:
         signals=lambda w: expand(RESULTS + "/{{dataset}}/signals/{trial}.parquet", trial=all_trials(w.dataset)),
-        estimates=lambda w: expand(RESULTS + "/{{dataset}}/estimates/{trial}.parquet", trial=all_trials(w.dataset)),
+        internals=lambda w: expand(RESULTS + "/{{dataset}}/internals/{trial}.parquet", trial=all_trials(w.dataset)),
         model=RESULTS + "/{dataset}/model/sensing.json",
         per_trial=RESULTS + "/{dataset}/tables/per_trial.csv",
     output:

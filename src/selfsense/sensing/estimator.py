@@ -85,6 +85,7 @@ class SensingConfig:
     zero_input_v: float = 0.5
     fit_z0: bool = False
     max_fit_samples: int = 20000
+    n_creep_thresholds: int = 8
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -180,7 +181,8 @@ def auto_creep_count(duration_s: float, dt: float) -> int:
 
 
 def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
-    """Fit the H(q) operator of ``cfg.h_model`` to the calibration target; returns (model, report dict)."""
+    """Fit Kuhnen's modified PI operator (thesis App. A) to the H(q) calibration target through the gauge of
+    :class:`GaugedH`; returns (model, report dict)."""
     t0 = time.perf_counter()
     n_creep = cfg.n_creep
     if n_creep == "auto":
@@ -190,20 +192,13 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
     slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
     c = 2.0 * max(0.0, -slope)
     target = ys + c * Q
-    if cfg.h_model == "modified_pi":
-        from selfsense.hysteresis.identify import fit_modified_pi
+    from selfsense.hysteresis.identify import fit_modified_pi
 
-        inner, rep = fit_modified_pi(
-            Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
-            solver=cfg.solver, fit_z0=cfg.fit_z0,
-        )
-        report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
-    else:
-        from selfsense.hysteresis.ri import RIModel
-
-        inner = RIModel()
-        inner.fit(np.maximum(Q, 0.0), target)
-        report = {"solver": "lstsq", "status": "optimal"}
+    inner, rep = fit_modified_pi(
+        Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
+        solver=cfg.solver, fit_z0=cfg.fit_z0,
+    )
+    report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
     model = GaugedH(inner, sign, c)
     pred = model(Q)
     rng = float(np.ptp(y)) or 1.0
@@ -230,6 +225,10 @@ def _h_to_dict(model) -> dict:
 
 def _h_from_dict(d: Mapping[str, Any]):
     kind = d["kind"]
+    if kind == "RICreepH":
+        from selfsense.sensing.hmodels import RICreepH
+
+        return RICreepH.from_dict(d["params"])
     if kind == "GaugedH":
         return GaugedH.from_dict(d["params"])
     if kind == "ModifiedPI":
@@ -342,12 +341,38 @@ class SelfSensingEstimator:
             slope = factor / (n_A * C_p)
             self.onsite_ = {"alpha": alpha, "B": B, "A_q": A_q, "factor": factor}
         self.h_slope_ = float(slope)
-        df_fit = _decimate(df_free[act], cfg.max_fit_samples)
-        t = df_fit["t"].to_numpy()
-        dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
-        Q = df_fit["q"].to_numpy()
-        y = h_target(df_fit["V"].to_numpy(), Q, slope)
-        self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
+        if cfg.h_model == "ri":
+            # RI model (third seed) + creep bank: linear in its parameters, fitted jointly on ALL free-tip
+            # calibration trials (each from the relaxed state the relay establishes)
+            from selfsense.sensing.hmodels import fit_ri_creep
+
+            segs = []
+            for tid in free.index:
+                d = cal_trials[tid]
+                d = d[d["relay"].to_numpy() < 0.5]
+                segs.append((d["q"].to_numpy(), h_target(d["V"].to_numpy(), d["q"].to_numpy(), slope)))
+            t = df_free["t"].to_numpy()
+            dt = float(np.median(np.diff(t)))
+            n_creep = cfg.n_creep if cfg.n_creep != "auto" else auto_creep_count(dt * max(len(q) for q, _ in segs), dt)
+            t0 = time.perf_counter()
+            self.hysteresis_, rep = fit_ri_creep(segs, dt, n_thresholds=cfg.n_creep_thresholds,
+                                                 n_creep=int(n_creep), creep=cfg.creep)
+            Q, y = segs[0]
+            pred = self.hysteresis_(Q)
+            rng = float(np.ptp(y)) or 1.0
+            rep.update({"rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
+                        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
+                        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))), "n_creep": int(n_creep),
+                        "h_model": "ri", "trials": list(free.index)})
+            print(f"H(q) fit: RI + creep on {len(segs)} free-tip trials, {time.perf_counter() - t0:.2f} s, "
+                  f"RMS {rep['rms_pct']:.3f} % of range on {free_id}")
+        else:
+            df_fit = _decimate(df_free[act], cfg.max_fit_samples)
+            t = df_fit["t"].to_numpy()
+            dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+            Q = df_fit["q"].to_numpy()
+            y = h_target(df_fit["V"].to_numpy(), Q, slope)
+            self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
         rep["trial"] = free_id
         rep["n_samples_fit"] = int(len(Q))
         self.fit_report_ = {"hysteresis": rep}
