@@ -15,6 +15,7 @@ validate(config, "workflow/schemas/config.schema.yaml")
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/pipeline.smk"
+include: "workflow/rules/ri.smk"
 HAVE_GAP_RULES = os.path.exists(os.path.join(workflow.basedir, "workflow/rules/gap.smk"))
 
 

@@ -1,8 +1,10 @@
 # Shared helpers: dataset and trial lists (read through selfsense.io so a bad trials.csv fails with a clear message).
 import os
+import sys
 
 from selfsense import io as sio
 
+PYTHON = sys.executable  # the interpreter running Snakemake (has selfsense installed)
 RAW = config.get("raw_dir", "data/raw")
 RESULTS = config.get("results_dir", "results")
 DATASETS = list(config["datasets"])
