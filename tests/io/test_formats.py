@@ -186,3 +186,41 @@ def test_export_estimates_mat_roundtrip_and_deterministic(tmp_path):
     with pytest.raises(ValueError, match="MATLAB identifier"):
         export_estimates_mat(est.rename(columns={"f_hat": "f-hat"}), tmp_path / "x.mat")
     assert not (tmp_path / "x.mat").exists()
+
+
+def test_dataset_with_tdms_and_mat_logs_reads_like_parquet(tmp_path):
+    """A dataset whose logs are NI TDMS and MATLAB files (rig.yaml channel_map with a group) validates and gives
+    the same SI signals as the same logs in Parquet."""
+    import shutil
+
+    import pandas as pd
+    import scipy.io
+    import yaml
+    from io_factory import make_dataset
+
+    from selfsense.io import trial_signals, validate_dataset
+
+    ref = make_dataset(tmp_path / "a", name="ds")
+    d = tmp_path / "b" / "ds"
+    shutil.copytree(ref, d)
+    trials = pd.read_csv(d / "trials.csv", dtype=str, keep_default_na=False)
+    for i, row in trials.iterrows():
+        log = pd.read_parquet(ref / row["file"]) if row["file"].endswith(".parquet") else pd.read_csv(ref / row["file"])
+        (d / row["file"]).unlink()
+        stem = row["file"].rsplit(".", 1)[0]
+        sig = {c: log[c].to_numpy() for c in ("u_cmd", "v_shunt", "laser", "load_cell", "relay")}
+        if i % 2 == 0:
+            new = f"{stem}.tdms"
+            _write_tdms(d / new, log["t"].to_numpy(), sig, with_time=True, group="daq")
+        else:
+            new = f"{stem}.mat"
+            mat = {CMAP[c]: v for c, v in sig.items()}
+            scipy.io.savemat(d / new, {"daq": {**mat, "Time": log["t"].to_numpy()}}, oned_as="column")
+        trials.loc[i, "file"] = new
+    trials.to_csv(d / "trials.csv", index=False)
+    rig = yaml.safe_load((d / "rig.yaml").read_text())
+    rig["channel_map"] = {"group": "daq", "columns": {**CMAP, "t": "Time"}}
+    (d / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
+    assert validate_dataset(d) == []
+    for t in trials["trial"]:
+        pd.testing.assert_frame_equal(trial_signals(d, t), trial_signals(ref, t))

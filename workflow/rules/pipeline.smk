@@ -35,8 +35,6 @@ rule ingest:
         RESULTS + "/{dataset}/logs/ingest/{trial}.log",
     benchmark:
         RESULTS + "/{dataset}/benchmarks/ingest/{trial}.tsv"
-    group:
-        "per_trial"
     threads: 1
     resources:
         mem_mb=2000,
@@ -98,8 +96,6 @@ rule estimate:
         RESULTS + "/{dataset}/logs/estimate/{trial}.log",
     benchmark:
         RESULTS + "/{dataset}/benchmarks/estimate/{trial}.tsv"
-    group:
-        "per_trial"
     threads: 1
     resources:
         mem_mb=2000,

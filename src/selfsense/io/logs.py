@@ -45,7 +45,7 @@ def _kind(path: Path, rig: Rig | None) -> str | None:
     if rig is not None and rig.format != "auto":
         return rig.format
     s = path.suffix.lower()
-    return {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(s)
+    return {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".tdms": "tdms", ".mat": "mat"}.get(s)
 
 
 def _probe(path: Path, size: int) -> tuple[bytes, bytes]:
@@ -288,11 +288,30 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         return None, [Problem(name, None, None, "a header line and data rows", "empty file (0 bytes)")]
     kind = _kind(path, rig)
     if kind is None:
-        return None, [Problem(name, None, None, "a .csv or .parquet log (or rig.yaml format)", path.suffix)]
+        return None, [Problem(name, None, None, "a .csv, .parquet, .tdms or .mat log (or rig.yaml format)",
+                              path.suffix)]
     cmap = rig.channel_map if rig is not None else None
     fcol = {c: (cmap.file_column(c) if cmap else c) for c in CANONICAL_COLUMNS}
     wanted = tuple(fcol[c] for c in CANONICAL_COLUMNS)
-    if kind == "csv":
+    if kind in ("tdms", "mat"):
+        # NI TDMS (npTDMS) and MATLAB logs: the readers return the canonical channels by name (channel map
+        # applied by name, no scaling); scaling and every signal check below are shared with CSV/Parquet.
+        from .errors import ContractError
+        from .formats import read_mat, read_tdms
+
+        cols = dict(cmap.columns) if cmap else None
+        grp = cmap.group if cmap else None
+        try:
+            if kind == "tdms":
+                raw = read_tdms(path, cols, group=grp)
+            else:
+                dt = None if (cols and "t" in cols) or rig is None else 1.0 / rig.sample_rate_hz
+                raw = read_mat(path, cols, group=grp, dt=dt)
+        except ContractError as e:
+            return None, list(e.problems)
+        fcol = {c: c for c in CANONICAL_COLUMNS}
+        num_probs: list[Problem] = []
+    elif kind == "csv":
         header, probs = _csv_header(name, path, size)
         if probs:
             return None, probs

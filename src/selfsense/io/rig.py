@@ -39,7 +39,7 @@ __all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "par
 RIG_FILE = "rig.yaml"
 #: raw DAQ channels of a trial log, in canonical order (DATA_FORMAT.md)
 CANONICAL_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "v_shunt", "laser", "load_cell", "relay")
-FORMATS = ("auto", "csv", "parquet")
+FORMATS = ("auto", "csv", "parquet", "tdms", "mat")
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,7 @@ class ChannelMap:
     """
     columns: dict[str, str] = field(default_factory=dict)
     scale: dict[str, float] = field(default_factory=dict)
+    group: str | None = None  #: TDMS group, or MATLAB struct path such as ``data.daq`` (other formats: unused)
 
     def file_column(self, name: str) -> str:
         return self.columns.get(name, name)
@@ -199,11 +200,16 @@ def _check_mapping(prefix: str, d: Any, schema: dict, optional: set[str], probs:
 
 def _check_channel_map(d: Any, probs: list[Problem]) -> ChannelMap | None:
     if not isinstance(d, dict):
-        probs.append(Problem(RIG_FILE, "channel_map", None, "a mapping with 'columns' and/or 'scale'", d))
+        probs.append(Problem(RIG_FILE, "channel_map", None, "a mapping with 'columns', 'scale' and/or 'group'", d))
         return None
     for k in d:
-        if k not in ("columns", "scale"):
-            probs.append(Problem(RIG_FILE, f"channel_map.{k}", None, "only 'columns' and 'scale'", "unknown key"))
+        if k not in ("columns", "scale", "group"):
+            probs.append(Problem(RIG_FILE, f"channel_map.{k}", None, "only 'columns', 'scale' and 'group'",
+                                 "unknown key"))
+    group = d.get("group")
+    if group is not None and (not isinstance(group, str) or not group):
+        probs.append(Problem(RIG_FILE, "channel_map.group", None, "a TDMS group or MATLAB struct path (string)", group))
+        group = None
     cols: dict[str, str] = {}
     scale: dict[str, float] = {}
     for sub in ("columns", "scale"):
@@ -234,7 +240,7 @@ def _check_channel_map(d: Any, probs: list[Problem]) -> ChannelMap | None:
                     scale[name] = float(val)
     if len(set(cols.values())) != len(cols):
         probs.append(Problem(RIG_FILE, "channel_map.columns", None, "distinct file columns", cols))
-    return ChannelMap(cols, scale)
+    return ChannelMap(cols, scale, group)
 
 
 def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, list[Problem]]:

@@ -25,7 +25,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "reference": ("displacement", "force"),
     "signal": ("sine", "mixed", "steps", "other"),
 }
-LOG_SUFFIXES = (".csv", ".parquet")
+LOG_SUFFIXES = (".csv", ".parquet", ".tdms", ".mat")
 _TRIAL_RE = re.compile(r"[A-Za-z0-9_-]+")
 _MAX_TRIALS_BYTES = 16 << 20
 
@@ -132,7 +132,7 @@ def check_trials(dataset_dir: str | Path) -> tuple[pd.DataFrame | None, list[Pro
         elif pp.is_absolute() or ".." in pp.parts or re.match(r"^[A-Za-z]:", f):
             probs.append(Problem(F, "file", i, "a relative path inside the dataset folder", f))
         elif pp.suffix.lower() not in LOG_SUFFIXES:
-            probs.append(Problem(F, "file", i, "a .csv or .parquet log", f))
+            probs.append(Problem(F, "file", i, "a .csv, .parquet, .tdms or .mat log", f))
         elif not (d / pp).is_file():
             probs.append(Problem(F, "file", i, "an existing log file", f"{f} (no such file)"))
         elif f in files:
