@@ -246,7 +246,7 @@ CASES = [
     ("trials-path-escape", mod_trials(lambda r: [[r[0][0], "../x.csv", *r[0][2:]]] + r[1:]),
      "trials.csv", "file", 1, "inside the dataset folder"),
     ("trials-not-a-log", mod_trials(lambda r: [[r[0][0], "rig.yaml", *r[0][2:]]] + r[1:]),
-     "trials.csv", "file", 1, "a .csv or .parquet log"),
+     "trials.csv", "file", 1, "a .csv, .parquet, .tdms or .mat log"),
     ("trials-same-file-twice", mod_trials(lambda r: r[:3] + [[r[3][0], r[0][1], *r[3][2:]]]),
      "trials.csv", "file", 4, "file already used in row 1"),
     ("trials-no-calibration", mod_trials(lambda r: [[*x[:2], "validation", *x[3:]] for x in r]),
