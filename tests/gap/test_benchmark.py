@@ -36,7 +36,18 @@ def test_fast_tier_scores_above_floors(records):
     assert sc["n_effect_free"] >= 3
     assert sc["false_alarm_rate_effect_free"] <= FLOOR_FA
     assert sc["family_top1"] >= FLOOR_FAMILY
+    assert sc["member_top1"] >= FLOOR_MEMBER
 
 
+# measured on these 24 cases (seed 5, toy): false alarms 0/6, family top-1 8/12, member top-1 5/12
 FLOOR_FA = 0.2
-FLOOR_FAMILY = 0.3
+FLOOR_FAMILY = 0.55
+FLOOR_MEMBER = 0.3
+
+
+def test_no_false_alarms_on_effect_free_device_simulations():
+    """Device simulator (selfsense.sim), effect-free: the family-wise null calibration keeps alarms rare
+    (measured 0/18 effect-free cases in the 100-case run, docs/gap.md)."""
+    recs = [run_scenario(i, 11, "fast", effects={}, sim_kind="device") for i in range(6)]
+    fa = np.mean([bool(r["prediction"]["effects"]) for r in recs])
+    assert fa <= 1 / 6 + 1e-9
