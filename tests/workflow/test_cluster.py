@@ -226,7 +226,7 @@ def _gap_benchmark_rule() -> str | None:
 def _gap_campaign_start(engine, tmp_path_factory) -> dict:
     """Start a tiny gap campaign (target ``gap_benchmark``, n = 2 scenarios) through the engine, or say why not.
 
-    The campaign size is the top-level config key ``gap_benchmark: {n, seed, tier}`` read by workflow/rules/gap.smk.
+    The campaign size is the config key ``gap: {benchmark: {n, seed, tier}}`` read by workflow/rules/gap.smk.
     """
     rule = _gap_benchmark_rule()
     if rule is None:
@@ -234,14 +234,11 @@ def _gap_campaign_start(engine, tmp_path_factory) -> dict:
                         "through the cluster (the smoke pipeline was)"}
     wd = _workdir(tmp_path_factory.mktemp("gap_" + engine["kind"]))
     cfg = yaml.safe_load((wd / "config.yaml").read_text())
-    cfg["gap_benchmark"] = {"n": 2, "seed": 1, "tier": "fast"}
+    cfg.setdefault("gap", {})
+    cfg["gap"] = dict(cfg["gap"] or {}, benchmark={"n": 2, "seed": 1, "tier": "fast"})
     (wd / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     dry = _snakemake(wd, [rule], ["-n", "--cores", "1"])
     out, _ = dry.communicate(timeout=300)
-    if dry.returncode != 0 and "'gap_benchmark' was unexpected" in out:
-        return {"skip": "BLOCKED: workflow/schemas/config.schema.yaml rejects the top-level key 'gap_benchmark' "
-                        "that gap.smk reads for the campaign size, so no tiny campaign can be configured "
-                        "(owner: lead / gap engineer)"}
     if dry.returncode != 0:
         return {"error": f"dry run of {rule} failed:\n{out[-4000:]}"}
     return {"proc": _snakemake(wd, [rule], ["--profile", str(engine["profile"])]), "workdir": wd}
