@@ -201,3 +201,27 @@ rule report:
         runtime=10,
     script:
         "../scripts/report.py"
+
+
+# MATLAB users: `snakemake --cores 2 matlab` writes every trial's estimates as results/<d>/matlab/<trial>.mat
+# (struct `estimates` with t, dx_hat, f_hat, dx_ref, f_ref in SI units, and struct `meta`); not in the default run.
+rule export_matlab:
+    input:
+        RESULTS + "/{dataset}/estimates/{trial}.parquet",
+    output:
+        RESULTS + "/{dataset}/matlab/{trial}.mat",
+    log:
+        RESULTS + "/{dataset}/logs/export_matlab/{trial}.log",
+    benchmark:
+        RESULTS + "/{dataset}/benchmarks/export_matlab/{trial}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/export_matlab.py"
+
+
+rule matlab:
+    input:
+        lambda w: [f"{RESULTS}/{d}/matlab/{t}.mat" for d in DATASETS for t in all_trials(d)],
