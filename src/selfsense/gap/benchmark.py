@@ -138,7 +138,7 @@ def _family(name: str) -> str:
 
 
 def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = None,
-                 thresholds: dict | None = None, sim_kind: str = "device") -> dict:
+                 thresholds: dict | None = None, sim_kind: str = "device", estimator: str = "fast") -> dict:
     """One benchmark case; returns a JSON-able record (manifest, truth, prediction, timing)."""
     cfg = TIERS[tier]
     sim = simulator(sim_kind)
@@ -150,9 +150,9 @@ def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = N
     # ---- the diagnostic sees only the dataset (sealed manifest)
     from .diagnose import load_thresholds
 
-    thr = {**load_thresholds(sim_kind), **(thresholds or {})}
-    d = diagnose(Case(trials, meta, rig), n_boot=cfg["n_boot"], seed=seed, with_budget=False, ci_boot=0,
-                 thresholds=thr)
+    thr = {**load_thresholds(sim_kind if estimator == "fast" else f"{sim_kind}_{estimator}"), **(thresholds or {})}
+    d = diagnose(Case(trials, meta, rig), estimator=estimator, n_boot=cfg["n_boot"], seed=seed, with_budget=False,
+                 ci_boot=0, thresholds=thr)
     t_diag = time.perf_counter() - t0
     # ---- counterfactual truth
     names = sorted(effects)
@@ -164,7 +164,7 @@ def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = N
                 cache[S] = d.verdict["score_before"]
             else:
                 tr, me, rg = sim({k: effects[k] for k in S}, sim_seed, cfg["T"], cfg["fs"])
-                cache[S] = Evaluator(Case(tr, me, rg))(frozenset()).score
+                cache[S] = Evaluator(Case(tr, me, rg), estimator)(frozenset()).score
         return cache[S]
 
     true_shrink = stats.shapley_exact(names, lambda S: err(S) - err(frozenset())) if names else {}
@@ -175,7 +175,7 @@ def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = N
     pts = d.verdict["shapley_pts"].get("mean", {})
     rec = {
         "case": int(i), "seed": int(seed), "tier": tier,
-        "manifest": {"effects": effects, "sim_seed": sim_seed, "simulator": sim_kind},
+        "manifest": {"effects": effects, "sim_seed": sim_seed, "simulator": sim_kind, "estimator": estimator},
         "truth": {"present": present, "true_shrink": true_shrink, "error_with": e_all, "error_without": e_null,
                   "gap": gap, "threshold_present": thr_present,
                   "open_set": any(_family(n) == "open" for n in names)},
@@ -296,8 +296,8 @@ def _has_tabulate() -> bool:
 
 
 def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "",
-                  sim_kind: str = "device") -> dict:
-    recs = [run_scenario(i, seed, tier, sim_kind=sim_kind) for i in range(n)]
+                  sim_kind: str = "device", estimator: str = "fast") -> dict:
+    recs = [run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator) for i in range(n)]
     sc = score(recs)
     if out is not None:
         out = Path(out)
@@ -308,7 +308,8 @@ def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None
     return sc
 
 
-def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95, sim_kind: str = "device") -> dict:
+def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95, sim_kind: str = "device",
+                         estimator: str = "fast") -> dict:
     """Null calibration: on effect-free simulations, the q-quantiles of the first forward-selection gain, of the
     best confirmation gain, and of the generic model-error-model gain become the thresholds."""
     from .diagnose import Screen
@@ -319,7 +320,7 @@ def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95,
     conf, gen, per = [], [], {}
     for i in range(n):
         tr, me, rg = sim({}, int(seed) * 1_000_003 + 500_000 + i, cfg["T"], cfg["fs"])
-        d = diagnose(Case(tr, me, rg), n_boot=0, with_budget=False, ci_boot=0,
+        d = diagnose(Case(tr, me, rg), estimator=estimator, n_boot=0, with_budget=False, ci_boot=0,
                      thresholds={"screen_member": -1e9, "confirm_rel": 1e9, "confirm_rel_member": {},
                                  "unexplained": 1e9}, max_effects=1)
         rel = d.verdict["confirm_rel_gain"]

@@ -35,7 +35,9 @@ def _benchmark(a) -> int:
     cmd = f"selfsense gap benchmark --n {a.n} --seed {a.seed} --tier {a.tier} --out {a.out}"
     if a.sim != "device":
         cmd += f" --sim {a.sim}"
-    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim)
+    if a.estimator != "fast":
+        cmd += f" --estimator {a.estimator}"
+    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim, estimator=a.estimator)
     dt = time.perf_counter() - t0
     print(f"{a.n} cases in {dt:.1f} s; family_top1={sc['family_top1']:.3f} member_top1={sc['member_top1']:.3f} "
           f"false_alarm={sc['false_alarm_rate_effect_free']:.3f} -> {a.out}/scores.md")
@@ -61,10 +63,11 @@ def _aggregate(a) -> int:
 def _calibrate(a) -> int:
     from .benchmark import calibrate_thresholds
 
-    thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim)
+    thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim, estimator=a.estimator)
     doc = {"thresholds": {k: v for k, v in thr.items() if not k.startswith("_")},
            "calibration": {"n_null": a.n, "seed": a.seed, "tier": a.tier, "quantile": thr["_q"],
-                           "command": f"selfsense gap calibrate --n {a.n} --seed {a.seed} --tier {a.tier} --out {a.out}"}}
+                           "command": f"selfsense gap calibrate --n {a.n} --seed {a.seed} --tier {a.tier} --sim {a.sim} "
+                                      f"--estimator {a.estimator} --out {a.out}"}}
     Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc, indent=1))
     return 0
@@ -94,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--tier", choices=["fast", "full"], default="fast")
     b.add_argument("--sim", choices=["device", "toy"], default="device",
                    help="device: selfsense.sim (default); toy: selfsense.gap.toysim")
+    b.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
     b.set_defaults(fn=_benchmark)
     s = sub.add_parser("scenario", help="one benchmark case -> JSON")
     s.add_argument("--i", type=int, required=True)
@@ -111,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--tier", choices=["fast", "full"], default="fast")
     c.add_argument("--out", required=True)
     c.add_argument("--sim", choices=["device", "toy"], default="device")
+    c.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
     c.set_defaults(fn=_calibrate)
     a = p.parse_args(argv)
     return int(a.fn(a) or 0)

@@ -33,7 +33,8 @@ DEFAULT_THRESHOLDS = {"screen_member": 0.0, "confirm_rel": 0.05, "unexplained": 
 
 def load_thresholds(kind: str = "device") -> dict:
     """Thresholds calibrated on effect-free simulations (package data ``thresholds.json``; the command that made
-    them is stored beside them). ``kind``: "device" (selfsense.sim, the default) or "toy" (toysim)."""
+    them is stored beside them). ``kind``: "device" (selfsense.sim + fast estimator, the default), "toy"
+    (toysim), "device_sensing" (selfsense.sim + the project estimator); unknown kinds fall back to "device"."""
     try:
         txt = resources.files("selfsense.gap").joinpath("thresholds.json").read_text()
         d = json.loads(txt)
@@ -283,7 +284,7 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
 
     Returns :class:`Diagnosis` with the contract tables (attribution, budget, shrink) and the verdict.
     """
-    thr = {**load_thresholds(), **(thresholds or {})}
+    thr = {**load_thresholds("device" if estimator == "fast" else f"device_{estimator}"), **(thresholds or {})}
     ev = Evaluator(case, estimator, **est_kw)
     base = ev(frozenset())
     screen = Screen(case, base, ev.rows, LIBRARY)

@@ -124,16 +124,32 @@ def g_few_ops(df, ref_scale: float | None = None, n: int = 12):
 _NOMINAL: dict = {}
 
 
-def nominal_fit(trials, meta, rig):
-    """Nominal fast estimator on these calibration trials (cached on the identity of the trial frames, so the
-    many augmentations of one diagnosis share one private nominal fit; pure function of its inputs)."""
+def like(estimator, augmentations=()):
+    """A fresh, unfitted estimator of the same kind and configuration as ``estimator``."""
     from .model import FastSensingEstimator
 
-    key = (tuple((k, id(v)) for k, v in trials.items()), tuple(meta.index), id(rig))
+    if isinstance(estimator, FastSensingEstimator):
+        return FastSensingEstimator(rig=estimator.rig, augmentations=tuple(augmentations), n_play=estimator.n_play,
+                                    regression=estimator.regression)
+    return type(estimator)(config=estimator.config, rig=estimator.rig, augmentations=tuple(augmentations))
+
+
+def extra_force_coef(est) -> np.ndarray:
+    """Force-row coefficients of the augmentation regressors of a fitted estimator (fast or project one)."""
+    if hasattr(est, "cf_"):
+        return np.asarray(est.cf_[2:], float)
+    return np.asarray(list(est.coef_.get("extra_f", {}).values()), float)
+
+
+def nominal_fit(trials, meta, estimator):
+    """Nominal estimator (same kind as ``estimator``, no augmentation) on these calibration trials, cached on the
+    identity of the trial frames so the augmentations of one diagnosis share one private nominal fit."""
+    key = (tuple((k, id(v)) for k, v in trials.items()), tuple(meta.index), id(estimator.rig),
+           type(estimator).__name__)
     if key not in _NOMINAL:
         if len(_NOMINAL) > 16:
             _NOMINAL.clear()
-        _NOMINAL[key] = (FastSensingEstimator(rig=rig).fit(trials, meta), trials, meta, rig)  # keep refs alive
+        _NOMINAL[key] = (like(estimator).fit(trials, meta), trials, meta)  # keep refs alive
     return _NOMINAL[key][0]
 
 
@@ -275,7 +291,7 @@ class OutputAug:
     fn: Callable
 
     def fit(self, trials, meta, estimator) -> None:
-        self._base = nominal_fit(trials, meta, estimator.rig)
+        self._base = nominal_fit(trials, meta, estimator)
         any_df = next(iter(trials.values()))
         self.feature_names = tuple(f"g{j}" for j in range(self._cols(any_df).shape[1]))
 
@@ -303,16 +319,14 @@ class InputAug:
     n_iter: int = 2
 
     def fit(self, trials, meta, estimator) -> None:
-        from .model import FastSensingEstimator
-
         any_df = next(iter(trials.values()))
         m = self.cols(any_df).shape[1]
         self.k_ = np.zeros(m)
         for _ in range(self.n_iter):
             probe = PlainAug(self.name + ".probe", self.cols)
             cur = {t: self.transform(d) for t, d in trials.items()}
-            est = FastSensingEstimator(rig=estimator.rig, augmentations=(probe,)).fit(cur, meta)
-            b = est.cf_[2:2 + m]
+            est = like(estimator, (probe,)).fit(cur, meta)
+            b = extra_force_coef(est)[:m]
             key = "B21" if self.target == "q" else "B22"
             denom = est.coef_[key]
             if not np.isfinite(denom) or denom == 0:
