@@ -26,7 +26,7 @@ rule gap_diagnose:
     params:
         dataset_dir=lambda w: os.path.join(RAW, w.dataset),
         out_dir=lambda w: f"{RESULTS}/{w.dataset}/gap",
-        estimator=config.get("gap", {}).get("estimator", "fast"),
+        estimator=config.get("gap", {}).get("estimator", "sensing"),
         seed=config.get("gap", {}).get("seed", 0),
     log:
         RESULTS + "/{dataset}/logs/gap_diagnose.log",

@@ -7,16 +7,25 @@ from pathlib import Path
 __all__ = ["run_diagnose", "run_scenario_to_json", "aggregate_scenarios"]
 
 
-def run_diagnose(dataset_dir, out_dir, estimator: str = "fast", seed: int = 0, n_boot: int = 30,
+def run_diagnose(dataset_dir, out_dir, estimator: str = "sensing", seed: int = 0, n_boot: int = 30,
                  figures: bool = True):
     """Load a raw dataset (and its truth folder if present), diagnose, write the contract files; returns the
-    :class:`~selfsense.gap.diagnose.Diagnosis`."""
+    :class:`~selfsense.gap.diagnose.Diagnosis`.
+
+    ``estimator="sensing"`` (default) diagnoses the project's ``SelfSensingEstimator`` (limiting / DC offset off);
+    if it cannot be calibrated on this dataset the fast stand-in is used and the verdict says so."""
     from .data import load_case
     from .diagnose import diagnose
     from .report import write_diagnosis
 
     case = load_case(dataset_dir, with_truth=True)
-    d = diagnose(case, estimator=estimator, seed=seed, n_boot=n_boot)
+    try:
+        d = diagnose(case, estimator=estimator, seed=seed, n_boot=n_boot)
+    except Exception as exc:  # noqa: BLE001 - report and fall back, never a silent fix
+        if estimator == "fast":
+            raise
+        d = diagnose(case, estimator="fast", seed=seed, n_boot=n_boot)
+        d.verdict["estimator_fallback"] = f"{estimator!r} failed ({type(exc).__name__}: {exc}); used 'fast'"
     write_diagnosis(d, out_dir, figures=figures)
     return d
 

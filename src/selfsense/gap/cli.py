@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)")
     d.add_argument("dataset_dir")
     d.add_argument("--out", required=True)
-    d.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
+    d.add_argument("--estimator", choices=["fast", "sensing"], default="sensing",
+                   help="sensing: the project's SelfSensingEstimator (default); fast: the NNLS stand-in")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--n-boot", type=int, default=30)
     d.add_argument("--no-figures", action="store_true")
