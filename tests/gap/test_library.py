@@ -42,3 +42,15 @@ def test_augmentation_shrinks_its_own_effect(name):
 def test_unknown_effect_name_is_reported():
     with pytest.raises(KeyError, match="unknown effect 'slow.nope'"):
         effect("slow.nope")
+
+
+def test_diagnosis_is_deterministic():
+    from selfsense.gap.diagnose import diagnose
+
+    case = Case(*simulate_case({"slow.creep": 12.0}, 8, 3.0, 400.0))
+    a = diagnose(case, n_boot=4, with_budget=False, ci_boot=10, seed=3)
+    b = diagnose(Case(*simulate_case({"slow.creep": 12.0}, 8, 3.0, 400.0)), n_boot=4, with_budget=False,
+                 ci_boot=10, seed=3)
+    assert a.attribution.equals(b.attribution)
+    assert a.shrink.equals(b.shrink)
+    assert a.verdict["effects"] == b.verdict["effects"]
