@@ -270,13 +270,6 @@ class Diagnosis:
     figures_data: dict = field(default_factory=dict, repr=False)
 
 
-def _family_first(screen: Screen, thr: float, max_k: int, weights=None) -> list[tuple[str, float]]:
-    """Forward selection reported family first: families compete with their members' union, then the best member."""
-    fam_members = {f: [e.name for e in LIBRARY if e.family == f and e.name in screen.names] for f in FAMILIES}
-    fam_members = {f: v for f, v in fam_members.items() if v}
-    return screen.forward_select(thr, max_k, weights)
-
-
 def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None, n_boot: int = 30,
              seed: int = 0, max_effects: int = 3, with_budget: bool = True, ci_boot: int = 200,
              max_candidates: int = 14, **est_kw) -> Diagnosis:
