@@ -2,7 +2,8 @@
 # Included by the Snakefile. `gap_diagnose` runs per dataset (the report uses its verdict);
 # `gap_benchmark` is a campaign target, NOT part of the default run:
 #     snakemake --cores 2 gap_benchmark            (n, seed, tier from config["gap"]["benchmark"], defaults below)
-#     e.g. in config.yaml:  gap: {enabled: true, benchmark: {n: 200, seed: 1, tier: full}}
+#     e.g. snakemake --cores 2 gap_benchmark --configfile config.yaml bench.yaml
+#          with bench.yaml:  gap: {enabled: true, benchmark: {n: 200, seed: 1, tier: full}}
 import os
 
 GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", **config.get("gap", {}).get("benchmark", {})}
