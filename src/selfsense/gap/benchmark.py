@@ -133,6 +133,16 @@ def draw_effects(rng: np.random.Generator, kind: str = "device", open_set_rate: 
     return {str(rng.choice(opn)): float(np.exp(rng.uniform(np.log(1.0), np.log(30.0))))}
 
 
+def threshold_key(sim_kind: str, estimator: str, tier: str) -> str:
+    """Key of thresholds.json for a (simulator, estimator, tier): "device", "toy", "device_sensing", "device_full"..."""
+    key = sim_kind
+    if estimator != "fast":
+        key += f"_{estimator}"
+    if tier != "fast":
+        key += f"_{tier}"
+    return key
+
+
 def _family(name: str) -> str:
     return name.split(".")[0]
 
@@ -150,7 +160,7 @@ def run_scenario(i: int, seed: int, tier: str = "fast", effects: dict | None = N
     # ---- the diagnostic sees only the dataset (sealed manifest)
     from .diagnose import load_thresholds
 
-    thr = {**load_thresholds(sim_kind if estimator == "fast" else f"{sim_kind}_{estimator}"), **(thresholds or {})}
+    thr = {**load_thresholds(threshold_key(sim_kind, estimator, tier)), **(thresholds or {})}
     d = diagnose(Case(trials, meta, rig), estimator=estimator, n_boot=cfg["n_boot"], seed=seed, with_budget=False,
                  ci_boot=0, thresholds=thr)
     t_diag = time.perf_counter() - t0

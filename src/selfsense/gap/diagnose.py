@@ -34,7 +34,8 @@ DEFAULT_THRESHOLDS = {"screen_member": 0.0, "confirm_rel": 0.05, "unexplained": 
 def load_thresholds(kind: str = "device") -> dict:
     """Thresholds calibrated on effect-free simulations (package data ``thresholds.json``; the command that made
     them is stored beside them). ``kind``: "device" (selfsense.sim + fast estimator, the default), "toy"
-    (toysim), "device_sensing" (selfsense.sim + the project estimator); unknown kinds fall back to "device"."""
+    (toysim), "device_sensing" (selfsense.sim + the project estimator), "device_full" (full tier); see
+    ``benchmark.threshold_key``. Unknown kinds fall back to "device"."""
     try:
         txt = resources.files("selfsense.gap").joinpath("thresholds.json").read_text()
         d = json.loads(txt)
