@@ -239,12 +239,14 @@ class logged:
         self.log_path = Path(log_path)
 
     def __enter__(self):
+        import logging
         import sys
 
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.log_path, "w")
         self._saved = sys.stdout, sys.stderr
         sys.stdout = sys.stderr = self._fh
+        logging.basicConfig(stream=self._fh, level=logging.INFO, format="%(name)s: %(message)s", force=True)
         return self
 
     def __exit__(self, exc_type, exc, tb):

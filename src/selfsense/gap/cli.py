@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)")
     d.add_argument("dataset_dir")
     d.add_argument("--out", required=True)
-    d.add_argument("--estimator", choices=["fast", "sensing"], default="sensing",
+    d.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing",
                    help="sensing: the project's SelfSensingEstimator (default); fast: the NNLS stand-in")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--n-boot", type=int, default=30)
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--tier", choices=["fast", "full"], default="fast")
     b.add_argument("--sim", choices=["device", "toy"], default="device",
                    help="device: selfsense.sim (default); toy: selfsense.gap.toysim")
-    b.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
+    b.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="fast")
     b.set_defaults(fn=_benchmark)
     s = sub.add_parser("scenario", help="one benchmark case -> JSON")
     s.add_argument("--i", type=int, required=True)
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--tier", choices=["fast", "full"], default="fast")
     c.add_argument("--out", required=True)
     c.add_argument("--sim", choices=["device", "toy"], default="device")
-    c.add_argument("--estimator", choices=["fast", "sensing"], default="fast")
+    c.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="fast")
     c.set_defaults(fn=_calibrate)
     a = p.parse_args(argv)
     return int(a.fn(a) or 0)

@@ -241,13 +241,16 @@ class FastSensingEstimator:
 
 
 def make_estimator(kind: str, rig: Any, augmentations: Sequence = (), **kw):
-    """Estimator factory: ``"fast"`` (:class:`FastSensingEstimator`) or ``"sensing"`` (the project's
-    ``selfsense.sensing.SelfSensingEstimator`` with limiting / DC offset switched off so residuals stay raw)."""
+    """Estimator factory: ``"fast"`` (:class:`FastSensingEstimator`), ``"sensing"`` (the project's
+    ``selfsense.sensing.SelfSensingEstimator`` with limiting / DC offset switched off so residuals stay raw) or
+    ``"sensing_ri"`` (the same with ``h_model="ri"``: RI + creep bank fitted on all free-tip calibration trials)."""
     if kind == "fast":
         return FastSensingEstimator(rig=rig, augmentations=tuple(augmentations), **kw)
-    if kind == "sensing":
+    if kind in ("sensing", "sensing_ri"):
         from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
+        if kind == "sensing_ri":
+            kw = {"h_model": "ri", **kw}
         cfg = SensingConfig(limit=False, dc_offset=False, **kw)
         return SelfSensingEstimator(config=cfg, rig=rig, augmentations=tuple(augmentations))
-    raise ValueError(f"estimator kind: expected 'fast' or 'sensing', found {kind!r}")
+    raise ValueError(f"estimator kind: expected 'fast', 'sensing' or 'sensing_ri', found {kind!r}")

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping, Protocol
@@ -37,6 +38,8 @@ import numpy as np
 import pandas as pd
 
 from selfsense.signals import limit_to_range, sliding_dc_offset
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "SensingConfig",
@@ -213,8 +216,8 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
     report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
     # wall-clock time goes to the log, never into an artefact (same input and config -> bit-identical JSON)
     report.pop("seconds", None)
-    print(f"H(q) fit: {cfg.h_model}, {len(Q)} samples, {time.perf_counter() - t0:.2f} s, "
-          f"RMS {report['rms_pct']:.3f} % / max {report['max_pct']:.3f} % of range")
+    log.info("H(q) fit: %s, %d samples, %.2f s, RMS %.3f %% / max %.3f %% of range", cfg.h_model, len(Q),
+             time.perf_counter() - t0, report["rms_pct"], report["max_pct"])
     report["h_model"] = cfg.h_model
     return model, report
 
@@ -364,8 +367,8 @@ class SelfSensingEstimator:
                         "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
                         "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))), "n_creep": int(n_creep),
                         "h_model": "ri", "trials": list(free.index)})
-            print(f"H(q) fit: RI + creep on {len(segs)} free-tip trials, {time.perf_counter() - t0:.2f} s, "
-                  f"RMS {rep['rms_pct']:.3f} % of range on {free_id}")
+            log.info("H(q) fit: RI + creep on %d free-tip trials, %.2f s, RMS %.3f %% of range on %s", len(segs),
+                     time.perf_counter() - t0, rep["rms_pct"], free_id)
         else:
             df_fit = _decimate(df_free[act], cfg.max_fit_samples)
             t = df_fit["t"].to_numpy()
