@@ -307,7 +307,11 @@ def _has_tabulate() -> bool:
 
 def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "",
                   sim_kind: str = "device", estimator: str = "fast") -> dict:
-    recs = [run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator) for i in range(n)]
+    from tqdm import tqdm
+
+    # progress bar on a terminal only (disable=None: quiet in non-interactive logs and Snakemake rule logs)
+    recs = [run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator)
+            for i in tqdm(range(n), desc="gap benchmark", unit="case", disable=None)]
     sc = score(recs)
     if out is not None:
         out = Path(out)
@@ -328,7 +332,9 @@ def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95,
     cfg = TIERS[tier]
     sim = simulator(sim_kind)
     conf, gen, per = [], [], {}
-    for i in range(n):
+    from tqdm import tqdm
+
+    for i in tqdm(range(n), desc="null calibration", unit="case", disable=None):
         tr, me, rg = sim({}, int(seed) * 1_000_003 + 500_000 + i, cfg["T"], cfg["fs"])
         d = diagnose(Case(tr, me, rg), estimator=estimator, n_boot=0, with_budget=False, ci_boot=0,
                      thresholds={"screen_member": -1e9, "confirm_rel": 1e9, "confirm_rel_member": {},

@@ -263,14 +263,19 @@ def _scenario_parts(scenario, seed):
 
 
 def simulate_scenario_in_memory(scenario, seed: int | None = None, contributions: bool = False,
-                                only=None) -> dict:
+                                only=None, progress: bool | None = False) -> dict:
     """All trials of a scenario in memory: ``{trial: (log, truth)}`` (insertion order = scenario order).
     ``only``: optional collection of trial names to simulate (same results as in the full run:
     per-trial seeds and campaign times do not depend on which trials are simulated)."""
     sc, seed, dev, fs, sub, eff = _scenario_parts(scenario, seed)
     res = {}
     tc = 0.0
-    for i, tr in enumerate(sc["trials"]):
+    from tqdm import tqdm
+
+    # progress: None = a bar on a terminal only (quiet in non-interactive logs); False = never
+    bar = tqdm(sc["trials"], desc=f"simulate {sc.get('name', '')}", unit="trial",
+               disable=None if progress is None else not progress)
+    for i, tr in enumerate(bar):
         tc += float(tr.get("rest_before_s", 60.0))
         if only is not None and tr["trial"] not in only:
             tc += float(tr["duration"])
@@ -330,7 +335,7 @@ def simulate_dataset(scenario, seed: int | None = None, out_dir=None, truth_dir=
     if truth_dir.resolve().is_relative_to(out_dir.resolve()):
         raise ValueError("truth_dir must not be inside the dataset folder")
     name = out_dir.name
-    res = simulate_scenario_in_memory(sc, seed, contributions=contributions)
+    res = simulate_scenario_in_memory(sc, seed, contributions=contributions, progress=None)
     tmp_out = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=out_dir.parent if out_dir.parent.exists() else None))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     truth_dir.parent.mkdir(parents=True, exist_ok=True)
