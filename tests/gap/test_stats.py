@@ -1,5 +1,4 @@
 """Statistics of the gap diagnostic: exact Shapley axioms, blocked resampling, blocked CV."""
-import itertools
 
 import numpy as np
 import pytest

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from selfsense.mechanics import piezo
-from selfsense.mechanics.device import TweezerMechanics, default_tweezer_mechanics
+from selfsense.mechanics.device import default_tweezer_mechanics
 
 RNG = np.random.default_rng(7)
 DEV = default_tweezer_mechanics()

@@ -20,7 +20,6 @@ import pandas as pd
 from . import stats
 from .data import Case
 from .diagnose import Evaluator, diagnose
-from .library import LIBRARY, effect
 
 __all__ = ["TIERS", "run_scenario", "score", "write_scores", "run_benchmark", "calibrate_thresholds", "simulator"]
 
@@ -326,8 +325,6 @@ def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95,
                          estimator: str = "fast") -> dict:
     """Null calibration: on effect-free simulations, the q-quantiles of the first forward-selection gain, of the
     best confirmation gain, and of the generic model-error-model gain become the thresholds."""
-    from .diagnose import Screen
-    from .library import LIBRARY as LIB
 
     cfg = TIERS[tier]
     sim = simulator(sim_kind)

@@ -45,7 +45,6 @@ def _benchmark(a) -> int:
 
 
 def _scenario(a) -> int:
-    from .benchmark import run_scenario
 
     from .api import run_scenario_to_json
 

@@ -18,13 +18,13 @@ The forms are deliberately NOT the simulator's generator forms (see FORMS.md).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 
-from .model import fit_fast_pi, rig_params, thresholds, _play
+from .model import fit_fast_pi, rig_params, _play
 from .signals import active, branch, deriv, dt_of, first_loading, leaky_integral, lowpass, t_active
 
 __all__ = ["Effect", "LIBRARY", "FAMILIES", "effect", "HCorrection", "RegressorAug", "Composite"]

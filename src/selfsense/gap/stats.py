@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import itertools
 from math import factorial
-from typing import Callable, Hashable, Iterable, Sequence
+from typing import Callable, Hashable, Sequence
 
 import numpy as np
 

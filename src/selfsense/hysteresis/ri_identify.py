@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ri import RIModel, RIState, diagonal_constraint_basis
+from .ri import RIModel, diagonal_constraint_basis
 
 __all__ = ["identification_protocol", "extract_protocol_points", "fit_protocol", "fit_F", "fit_G",
            "error_metrics", "compare_models", "fit_line", "fit_plain_pi", "markdown_table"]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 import warnings
 from pathlib import Path
 

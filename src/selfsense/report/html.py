@@ -6,7 +6,6 @@ import html
 import json
 from pathlib import Path
 
-import pandas as pd
 
 
 def _md_table_to_html(md: str) -> str:

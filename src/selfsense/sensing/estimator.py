@@ -28,11 +28,10 @@ Units: SI throughout (C, V, m, N, s).
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Protocol
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 import pandas as pd

@@ -8,7 +8,7 @@ paper ``001_972cacfaa08ad91a.txt`` Table I (alpha, C_p).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import resources
 from typing import Any
 

@@ -18,7 +18,6 @@ fixed draw order independent of the effects, so counterfactual runs share the no
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
