@@ -515,7 +515,7 @@ class SelfSensingEstimator:
         if cfg.limit:
             dx = limit_to_range(dx, *self.ranges_["dx"])
             f = limit_to_range(f, *self.ranges_["f"])
-        V_H = _eval_h(self.hysteresis_, df["q"].to_numpy(dtype=float))
+        V_H = df["V"].to_numpy(dtype=float) - X[:, 1]  # thesis eq. (27): V = V_p + V_H (H evaluated once)
         return pd.DataFrame({
             "t": df["t"].to_numpy(dtype=float),
             "dx_hat": dx, "f_hat": f, "dx_raw": dx_raw, "f_raw": f_raw,
