@@ -10,7 +10,7 @@ from selfsense.gap.benchmark import run_scenario, score
 
 @pytest.fixture(scope="module")
 def records():
-    return [run_scenario(i, 5, "fast", sim_kind="toy") for i in range(24)]
+    return [run_scenario(i, 5, "fast", sim_kind="toy", estimator="fast") for i in range(24)]
 
 
 def test_manifest_is_sealed_from_the_diagnostic(records):

@@ -6,7 +6,7 @@
 #          with bench.yaml:  gap: {enabled: true, benchmark: {n: 200, seed: 1, tier: full}}
 import os
 
-GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", **config.get("gap", {}).get("benchmark", {})}
+GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", "estimator": "sensing_ri", **config.get("gap", {}).get("benchmark", {})}
 
 
 def gap_raw_inputs(wildcards):
@@ -47,6 +47,7 @@ rule gap_scenario:
     params:
         seed=GAP_BENCH["seed"],
         tier=GAP_BENCH["tier"],
+        estimator=GAP_BENCH["estimator"],
     log:
         RESULTS + "/gap_benchmark/logs/scenario_{i}.log",
     benchmark:

@@ -5,4 +5,4 @@ from selfsense.gap.api import run_scenario_to_json
 
 with open(snakemake.log[0], "w") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):  # noqa: F821
     run_scenario_to_json(int(snakemake.wildcards.i), int(snakemake.params.seed), snakemake.params.tier,  # noqa: F821
-                         snakemake.output[0])  # noqa: F821
+                         snakemake.output[0], estimator=snakemake.params.estimator)  # noqa: F821

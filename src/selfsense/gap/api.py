@@ -30,10 +30,11 @@ def run_diagnose(dataset_dir, out_dir, estimator: str = "sensing", seed: int = 0
     return d
 
 
-def run_scenario_to_json(i: int, seed: int, tier: str, out_path, sim_kind: str = "device") -> dict:
+def run_scenario_to_json(i: int, seed: int, tier: str, out_path, sim_kind: str = "device",
+                         estimator: str = "sensing_ri") -> dict:
     from .benchmark import run_scenario
 
-    rec = run_scenario(i, seed, tier, sim_kind=sim_kind)
+    rec = run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator)
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     Path(out_path).write_text(json.dumps(rec, indent=1, default=float))
     return rec

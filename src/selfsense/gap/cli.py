@@ -1,7 +1,7 @@
 """``selfsense gap ...``: the sim-to-real gap diagnostic and its blind benchmark.
 
   selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator fast|sensing] [--seed S] [--n-boot B]
-  selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full]
+  selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full] [--jobs J] [--estimator sensing_ri]
   selfsense gap scenario --i I --seed S --out FILE.json [--tier fast|full]      (one benchmark case)
   selfsense gap aggregate SCENARIO_JSON... --out DIR                            (scores from case files)
   selfsense gap calibrate --n N --seed S --out thresholds.json [--tier fast]    (null-calibrated thresholds)
@@ -35,9 +35,9 @@ def _benchmark(a) -> int:
     cmd = f"selfsense gap benchmark --n {a.n} --seed {a.seed} --tier {a.tier} --out {a.out}"
     if a.sim != "device":
         cmd += f" --sim {a.sim}"
-    if a.estimator != "fast":
+    if a.estimator != "sensing_ri":
         cmd += f" --estimator {a.estimator}"
-    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim, estimator=a.estimator)
+    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim, estimator=a.estimator, jobs=a.jobs)
     dt = time.perf_counter() - t0
     print(f"{a.n} cases in {dt:.1f} s; family_top1={sc['family_top1']:.3f} member_top1={sc['member_top1']:.3f} "
           f"false_alarm={sc['false_alarm_rate_effect_free']:.3f} -> {a.out}/scores.md")
@@ -48,7 +48,7 @@ def _scenario(a) -> int:
 
     from .api import run_scenario_to_json
 
-    run_scenario_to_json(a.i, a.seed, a.tier, a.out)
+    run_scenario_to_json(a.i, a.seed, a.tier, a.out, estimator=a.estimator)
     return 0
 
 
@@ -64,6 +64,7 @@ def _calibrate(a) -> int:
 
     thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim, estimator=a.estimator)
     doc = {"thresholds": {k: v for k, v in thr.items() if not k.startswith("_")},
+           "null_gains": thr["_null_gains"], "null_generic_gain": thr["_null_generic"],
            "calibration": {"n_null": a.n, "seed": a.seed, "tier": a.tier, "quantile": thr["_q"],
                            "command": f"selfsense gap calibrate --n {a.n} --seed {a.seed} --tier {a.tier} --sim {a.sim} "
                                       f"--estimator {a.estimator} --out {a.out}"}}
@@ -97,13 +98,16 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--tier", choices=["fast", "full"], default="fast")
     b.add_argument("--sim", choices=["device", "toy"], default="device",
                    help="device: selfsense.sim (default); toy: selfsense.gap.toysim")
-    b.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="fast")
+    b.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing_ri",
+                   help="nominal model whose gap is diagnosed (default sensing_ri: RI + creep, the best nominal)")
+    b.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
     b.set_defaults(fn=_benchmark)
     s = sub.add_parser("scenario", help="one benchmark case -> JSON")
     s.add_argument("--i", type=int, required=True)
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True)
     s.add_argument("--tier", choices=["fast", "full"], default="fast")
+    s.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing_ri")
     s.set_defaults(fn=_scenario)
     g = sub.add_parser("aggregate", help="scores from scenario JSON files")
     g.add_argument("files", nargs="+")
@@ -115,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--tier", choices=["fast", "full"], default="fast")
     c.add_argument("--out", required=True)
     c.add_argument("--sim", choices=["device", "toy"], default="device")
-    c.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="fast")
+    c.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing_ri")
     c.set_defaults(fn=_calibrate)
     a = p.parse_args(argv)
     return int(a.fn(a) or 0)

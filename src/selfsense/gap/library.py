@@ -24,7 +24,8 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from .model import fit_fast_pi, rig_params, _play
+from .model import fit_fast_pi, pi_design, rig_params, solve_signed_nnls, _play
+from .model import sup_thresholds as _sup_thresholds, thresholds as _thresholds
 from .signals import active, branch, deriv, dt_of, first_loading, leaky_integral, lowpass, t_active
 
 __all__ = ["Effect", "LIBRARY", "FAMILIES", "effect", "HCorrection", "RegressorAug", "Composite"]
@@ -173,19 +174,32 @@ class HCorrection:
         return self.cols(df, self._qs) if self.scaled else self.cols(df)
 
     def fit(self, trials, meta, estimator) -> None:
-        free = meta[meta["tip"] == "free"].index[0]
-        df = trials[free]
+        """Joint least squares over ALL free-tip calibration trials (stacked, each with its own play-operator
+        history): y = V - Q/(n_A C_p) = H(Q) + sum_j c_j g_j (thesis eq. 55 target). Stacking trials with
+        different histories (sine, mixed, protocol steps) is what separates a slow charge-path term from H."""
+        free = list(meta[meta["tip"] == "free"].index)
         p = rig_params(estimator.rig)
         self._cpt = p["n_A"] * p["C_p"]
-        act = active(df)
-        Q = _Q(df)
-        self._qs = _scale(Q[act])
-        G = self._g(df)[act]
-        y = _V(df)[act] - Q[act] / self._cpt
-        n_play = int(getattr(estimator, "n_play", getattr(getattr(estimator, "config", None), "n_play", 8)))
-        step = max(1, len(y) // 4000)
-        _, c = fit_fast_pi(Q[act][::step], y[::step], min(n_play, 10), extra=G[::step])
-        self.coef_ = c
+        Qs = [_Q(trials[t])[active(trials[t])] for t in free]
+        self._qs = _scale(np.concatenate(Qs))
+        n_play = min(int(getattr(estimator, "n_play", getattr(getattr(estimator, "config", None), "n_play", 8))), 10)
+        r = _thresholds(self._qs, n_play)
+        d = _sup_thresholds(self._qs, 4)
+        X, Y = [], []
+        n_tot = sum(len(q) for q in Qs)
+        for t, Q in zip(free, Qs):
+            df = trials[t]
+            act = active(df)
+            G = self._g(df)[act]
+            y = _V(df)[act] - Q / self._cpt
+            step = max(1, n_tot // 6000)
+            B = pi_design(Q, r, d)  # play histories computed on the full trial, then decimated
+            X.append(np.column_stack([B[:, :6], G, B[:, 6:]])[::step])
+            Y.append(y[::step])
+        X, Y = np.vstack(X), np.concatenate(Y)
+        nf = 6 + X.shape[1] - 6 - n_play
+        c = solve_signed_nnls(X, Y, nf)
+        self.coef_ = c[6:nf]
 
     def transform(self, df: pd.DataFrame) -> pd.DataFrame:
         if self.coef_ is None:
@@ -482,15 +496,15 @@ LIBRARY: tuple[Effect, ...] = (
            "creep between charge and displacement (lag bank of Q in the sensing regression)",
            "add a creep operator bank to the charge-to-tip map", "up/down steps to the same level"),
     Effect("slow", "leakage", lambda df, est: g_leak(df),
-           lambda: InputAug("slow.leakage", g_leak, "q"),
+           _hc("slow.leakage", g_leak, "q"),
            "charge leakage through a finite insulation resistance (leaky integral of V added to Q)",
            "model R_leak in the charge path", "long holds at high V and at 0 V"),
     Effect("slow", "offset_drift", lambda df, est: g_offset(df),
-           lambda: InputAug("slow.offset_drift", g_offset, "q"),
+           _hc("slow.offset_drift", g_offset, "q"),
            "integrator / ADC offset drift (ramp in Q)", "estimate the shunt-amplifier offset on a 0 V hold",
            "a zero-input hold"),
     Effect("slow", "absorption", lambda df, est: g_absorption(df),
-           lambda: InputAug("slow.absorption", g_absorption, "q"),
+           _hc("slow.absorption", g_absorption, "q"),
            "dielectric absorption (electrical soak of the charge after steps)",
            "add a soak term to the charge path (C0G sense capacitor)", "step on a blocked tip / dummy capacitor"),
     Effect("slow", "temperature", s_temperature,
@@ -543,3 +557,4 @@ def effect(name: str) -> Effect:
         return _BY_NAME[name]
     except KeyError:
         raise KeyError(f"unknown effect {name!r}; expected one of {sorted(_BY_NAME)}") from None
+
