@@ -516,7 +516,7 @@ LIBRARY: tuple[Effect, ...] = (
            "mechanism dynamics (2nd-order mode): derivatives of Q in the sensing regression",
            "add the mechanism mode to the two-port", "sine sweeps"),
     Effect("rate", "amplifier", lambda df, est: g_amplifier(df),
-           lambda: InputAug("rate.amplifier", g_amplifier, "V"),
+           lambda: CurrentLimitReconstruction(),
            "amplifier bandwidth / slew (terminal voltage lags the command)", "measure V at the terminals",
            "fast steps, terminal voltage probe"),
     Effect("hysteresis", "one_sided", s_one_sided,
@@ -558,3 +558,70 @@ def effect(name: str) -> Effect:
     except KeyError:
         raise KeyError(f"unknown effect {name!r}; expected one of {sorted(_BY_NAME)}") from None
 
+
+
+# --------------------------------------------------------------------------- physical self-calibrations
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Contiguous True runs of a boolean mask as (start, stop) index pairs."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.diff(m.astype(int))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _relay_offset(df) -> float:
+    relay = df["relay"].to_numpy() >= 0.5
+    runs = _runs(relay)
+    if not runs:
+        return 0.0
+    a, b = runs[0]
+    return float(np.mean(df["V_s"].to_numpy(float)[a:b]))
+
+
+def _slew_limit(x: np.ndarray, t: np.ndarray, rate: float) -> np.ndarray:
+    """Rate-limited copy of ``x``: |dy/dt| <= rate [units/s] (forward recursion)."""
+    y = np.empty_like(x)
+    y[0] = x[0]
+    dtl = rate * np.diff(t)
+    prev = x[0]
+    for i in range(1, len(x)):  # a few thousand samples per trial: plain Python is fast enough here
+        d = x[i] - prev
+        lim = dtl[i - 1]
+        prev = prev + (lim if d > lim else (-lim if d < -lim else d))
+        y[i] = prev
+    return y
+
+
+@dataclass
+class CurrentLimitReconstruction:
+    """Structural augmentation for amplifier limits (rate family). The actuator voltage is reconstructed from the
+    command, ``V_c = gain u_cmd`` (thesis eq. 56); a current-limited amplifier cannot charge the capacitive load
+    faster than ``i_max / C`` and its true output lags the command. ``i_max`` is read off the calibration trials
+    (the largest shunt current, a plateau when the limit is active); per trial, C is the secant capacitance
+    ptp(q)/ptp(V). Transform: ``V_c <- rate_limit(gain u_cmd, i_max / C)``, ``V <- V_c - V_s``."""
+
+    name: str = "rate.amplifier"
+
+    def fit(self, trials, meta, estimator) -> None:
+        R = rig_params(estimator.rig)["R"]
+        imax = 0.0
+        for df in trials.values():
+            act = active(df)
+            if act.any():
+                imax = max(imax, float(np.max(np.abs(df["V_s"].to_numpy(float)[act] - _relay_offset(df)))) / R)
+        self.i_max_ = imax
+
+    def transform(self, df: pd.DataFrame) -> pd.DataFrame:
+        act = active(df)
+        if not act.any() or not self.i_max_ > 0:
+            return df
+        V, Q = _V(df)[act], _Q(df)[act]
+        C = float(np.ptp(Q) / np.ptp(V)) if np.ptp(V) > 0 else 0.0
+        if not C > 0:
+            return df
+        df = df.copy()
+        vc = _slew_limit(df["V_c"].to_numpy(float), df["t"].to_numpy(float), self.i_max_ / C)
+        df["V_c"] = vc
+        df["V"] = vc - df["V_s"].to_numpy(float)
+        return df

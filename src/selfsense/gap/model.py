@@ -40,7 +40,7 @@ def rig_params(rig: Any) -> dict[str, float]:
         return float(o)
 
     return {"n_A": get("n_actuators"), "C_p": get("actuator_catalog", "capacitance_f"),
-            "gain": get("amplifier_gain")}
+            "gain": get("amplifier_gain"), "R": get("shunt_resistance_ohm")}
 
 
 @dataclass
