@@ -62,7 +62,7 @@ def _aggregate(a) -> int:
 def _calibrate(a) -> int:
     from .benchmark import calibrate_thresholds
 
-    thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim, estimator=a.estimator)
+    thr = calibrate_thresholds(a.n, a.seed, a.tier, sim_kind=a.sim, estimator=a.estimator, jobs=a.jobs)
     doc = {"thresholds": {k: v for k, v in thr.items() if not k.startswith("_")},
            "null_gains": thr["_null_gains"], "null_generic_gain": thr["_null_generic"],
            "calibration": {"n_null": a.n, "seed": a.seed, "tier": a.tier, "quantile": thr["_q"],
@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--out", required=True)
     c.add_argument("--sim", choices=["device", "toy"], default="device")
     c.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing_ri")
+    c.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
     c.set_defaults(fn=_calibrate)
     a = p.parse_args(argv)
     return int(a.fn(a) or 0)
