@@ -72,7 +72,9 @@ def _device_scenario(T: float, fs: float, seed: int | None = None) -> list[dict]
     lv = [[1.0, 0.0]] + [list(map(float, SINE_LEVELS[i])) for i in rng.permutation(len(SINE_LEVELS))]
     hi = float(rng.uniform(0.8, 1.0))
     mid = float(np.round(rng.uniform(0.35, 0.65), 3))
-    steps = [hi, 0.0, mid, 0.0, hi, mid, hi, 0.0]
+    # hi, then mid from ABOVE, 0 V, mid from BELOW (symmetric steps to the same level), hi, 0 V: with 1.6 s per
+    # step the first five already hold every protocol element (gap.protocol.excitation_check)
+    steps = [hi, mid, 0.0, mid, hi, 0.0]
     obj_d, obj_f = float(rng.uniform(2.5, 4.5)), float(rng.uniform(1.5, 3.5))
     common = {"amplitude": A, "rest_before_s": 5.0}
     prot = {"signal": "steps", "levels": steps, "hold_s": 1.2, "ramp_s": 0.4}
@@ -318,7 +320,6 @@ def _score(records: list[dict]) -> dict:
     errs, errs_all = [], []
     for r in with_present:
         for p in r["truth"]["present"]:
-            tru = r["truth"]["true_shrink"][p]
             fam = _family(p)
             pred = sum(v for k, v in r["prediction"]["shrink"].items() if _family(k) == fam)
             true_fam = sum(r["truth"]["true_shrink"][q] for q in r["truth"]["present"] if _family(q) == fam)

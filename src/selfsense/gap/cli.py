@@ -37,6 +37,8 @@ def _benchmark(a) -> int:
         cmd += f" --sim {a.sim}"
     if a.estimator != "sensing_ri":
         cmd += f" --estimator {a.estimator}"
+    if a.jobs > 1:
+        cmd += f" --jobs {a.jobs}"
     sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim, estimator=a.estimator, jobs=a.jobs)
     dt = time.perf_counter() - t0
     print(f"{a.n} cases in {dt:.1f} s; family_top1={sc['family_top1']:.3f} member_top1={sc['member_top1']:.3f} "

@@ -35,7 +35,6 @@ def prepare_fallback(si: pd.DataFrame, R: float) -> pd.DataFrame:
     t = si["t"].to_numpy(float)
     Vs = si["V_s"].to_numpy(float)
     relay = si["relay"].to_numpy(float) >= 0.5
-    dt = np.diff(t, prepend=t[0])
     inc = np.concatenate([[0.0], 0.5 * (Vs[1:] + Vs[:-1]) * np.diff(t)]) / R
     q = np.zeros_like(t)
     acc = 0.0

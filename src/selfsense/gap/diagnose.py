@@ -21,6 +21,7 @@ from . import stats
 from .data import Case
 from .library import FAMILIES, LIBRARY, Effect, effect
 from .model import make_estimator
+from .protocol import excitation_check, proposal
 from .signals import active, branch, deriv, dt_of, first_loading, lowpass, t_active
 
 __all__ = ["Diagnosis", "diagnose", "load_thresholds", "Evaluator", "MEASUREMENTS", "generic_features"]
@@ -191,7 +192,7 @@ class Screen:
             n_tot = len(ev.e[m])
             step = max(1, n_tot // max_rows)
             blocks_all = []
-            mats, gen = [], []
+            mats = []
             for i, (tid, mask, _) in enumerate(rows[m]):
                 if tid not in feats_cache:
                     df, est = case.trials[tid], ev.estimates[tid]
@@ -279,6 +280,7 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     Returns :class:`Diagnosis` with the contract tables (attribution, budget, shrink) and the verdict.
     """
     thr = {**load_thresholds("device" if estimator == "fast" else f"device_{estimator}"), **(thresholds or {})}
+    excitation = excitation_check(case.trials, case.meta)
     ev = Evaluator(case, estimator, **est_kw)
     base = ev(frozenset())
     screen = Screen(case, base, ev.rows, LIBRARY)
@@ -404,6 +406,8 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
         "thresholds": thr, "n_refits": ev.n_fits, "estimator": estimator,
         "suggestions": {n: {"model_change": effect(n).suggestion, "confirming_experiment": effect(n).experiment}
                         for n in confirmed},
+        "excitation": excitation,
+        "protocol_proposal": proposal(excitation),
     }
     figs = {"base": base, "final": final, "ev": ev}
     return Diagnosis(attribution, budget, shrink, verdict, figs)

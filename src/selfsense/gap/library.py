@@ -8,12 +8,13 @@ Each :class:`Effect` has
   (``name``, ``fit(trials, meta, estimator)`` on calibration trials only, ``transform(df)``, ``features(df)``,
   ``feature_names``), used for confirmation by refit.
 
-Structural augmentations come in three kinds:
-* charge-path corrections (``target="q"``): fitted jointly with a play-operator H on the free-tip calibration trial
-  (thesis eq. 55 target ``V - Q/(n_A C_p)``); the transform is ``Q <- Q + n_A C_p sum_j c_j g_j``;
+Structural augmentations come in four kinds:
+* charge-path corrections (``target="q"``): fitted jointly with a play-operator H by least squares over all
+  free-tip calibration trials (thesis eq. 55 target ``V - Q/(n_A C_p)``); transform ``Q <- Q + n_A C_p sum c_j g_j``;
 * voltage-side / hysteresis-shape corrections (``target="V"``): same joint fit, transform ``V <- V - sum_j c_j g_j``,
   i.e. extra terms of H(q) (thesis eq. 27: V_p = V - H(q));
-* extra regressors of the sensing regression (thesis eq. 52 rows), ``features(df)``.
+* extra regressors of the sensing regression (thesis eq. 52 rows), ``features(df)``;
+* physical reconstructions of a measured input (amplifier limits: :class:`CurrentLimitReconstruction`).
 The forms are deliberately NOT the simulator's generator forms (see FORMS.md).
 """
 from __future__ import annotations
@@ -26,6 +27,7 @@ import pandas as pd
 
 from .model import fit_fast_pi, pi_design, rig_params, solve_signed_nnls, _play
 from .model import sup_thresholds as _sup_thresholds, thresholds as _thresholds
+from .protocol import _runs
 from .signals import active, branch, deriv, dt_of, first_loading, leaky_integral, lowpass, t_active
 
 __all__ = ["Effect", "LIBRARY", "FAMILIES", "effect", "HCorrection", "RegressorAug", "Composite"]
@@ -133,13 +135,6 @@ def like(estimator, augmentations=()):
         return FastSensingEstimator(rig=estimator.rig, augmentations=tuple(augmentations), n_play=estimator.n_play,
                                     regression=estimator.regression)
     return type(estimator)(config=estimator.config, rig=estimator.rig, augmentations=tuple(augmentations))
-
-
-def extra_force_coef(est) -> np.ndarray:
-    """Force-row coefficients of the augmentation regressors of a fitted estimator (fast or project one)."""
-    if hasattr(est, "cf_"):
-        return np.asarray(est.cf_[2:], float)
-    return np.asarray(list(est.coef_.get("extra_f", {}).values()), float)
 
 
 def nominal_fit(trials, meta, estimator):
@@ -277,24 +272,6 @@ def _temp_feats(aug, df):
 
 
 @dataclass
-class PlainAug:
-    """Extra regressors ``cols(df)`` appended to both rows of the sensing regression (thesis eq. 52): for
-    charge-path effects, Q_true = Q + sum c_j g_j enters both rows linearly (per-row coefficients A1 c_j, B21 c_j)."""
-
-    name: str
-    cols: Callable
-
-    def fit(self, trials, meta, estimator) -> None:
-        any_df = next(iter(trials.values()))
-        self.feature_names = tuple(f"g{j}" for j in range(self.cols(any_df).shape[1]))
-
-    def features(self, df: pd.DataFrame) -> pd.DataFrame:
-        if not hasattr(self, "feature_names"):
-            self.feature_names = tuple(f"g{j}" for j in range(self.cols(df).shape[1]))
-        return pd.DataFrame(self.cols(df), columns=list(self.feature_names), index=df.index)
-
-
-@dataclass
 class OutputAug:
     """Regressors built from the *nominal model's own output* (a private nominal fit on the same calibration
     trials): e.g. derivatives of the estimated tip signals for output dynamics, lags of them for creep, products
@@ -314,47 +291,6 @@ class OutputAug:
 
     def features(self, df: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(self._cols(df), columns=list(self.feature_names), index=df.index)
-
-
-@dataclass
-class InputAug:
-    """Structural correction of an *input* of the model (charge path ``target="q"`` or terminal voltage
-    ``target="V"``): ``Q <- Q - k.g(df)`` or ``V <- V - k.g(df)``, refitted end to end.
-
-    k is identified from the force row of the sensing regression (the most sensitive one, CALIBRATION_NOTES 2):
-    a private nominal fit with g appended as regressors gives force-row coefficients b = B21 k (charge) or
-    B22 k (voltage), thesis eq. (52); two fixed-point passes (transform, refit H(q), re-estimate) remove the part
-    of g that the free-tip H(q) fit absorbed.
-    """
-
-    name: str
-    cols: Callable
-    target: str = "q"
-    n_iter: int = 2
-
-    def fit(self, trials, meta, estimator) -> None:
-        any_df = next(iter(trials.values()))
-        m = self.cols(any_df).shape[1]
-        self.k_ = np.zeros(m)
-        for _ in range(self.n_iter):
-            probe = PlainAug(self.name + ".probe", self.cols)
-            cur = {t: self.transform(d) for t, d in trials.items()}
-            est = like(estimator, (probe,)).fit(cur, meta)
-            b = extra_force_coef(est)[:m]
-            key = "B21" if self.target == "q" else "B22"
-            denom = est.coef_[key]
-            if not np.isfinite(denom) or denom == 0:
-                break
-            self.k_ = self.k_ - b / denom
-
-    def transform(self, df: pd.DataFrame) -> pd.DataFrame:
-        if not np.any(self.k_):
-            return df
-        corr = self.cols(df) @ self.k_
-        df = df.copy()
-        col = "q" if self.target == "q" else "V"
-        df[col] = df[col].to_numpy(float) - corr
-        return df
 
 
 @dataclass
@@ -561,13 +497,6 @@ def effect(name: str) -> Effect:
 
 
 # --------------------------------------------------------------------------- physical self-calibrations
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Contiguous True runs of a boolean mask as (start, stop) index pairs."""
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    d = np.diff(m.astype(int))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
 def _relay_offset(df) -> float:

@@ -91,7 +91,24 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str
         parts.append("<h2>Sim-to-real gap diagnostic</h2>")
         v = gap / "verdict.json"
         if v.exists():
-            parts.append(f"<pre>{html.escape(v.read_text())}</pre>")
+            txt = v.read_text()
+            try:
+                vd = json.loads(txt)
+            except json.JSONDecodeError:
+                vd = {}
+            if vd:
+                eb, ea = vd.get("score_before"), vd.get("score_after_all")
+                items = [f"<li><b>Verdict</b>: {html.escape(str(vd.get('message', '')))}</li>"]
+                if isinstance(eb, (int, float)) and isinstance(ea, (int, float)):
+                    items.append(f"<li><b>Held-out error</b> (mean of displacement and force, % of range): "
+                                 f"{eb:.2f} before, {ea:.2f} after the confirmed effects (refit on calibration "
+                                 f"trials)</li>")
+                items.append(f"<li><b>Unexplained structure</b>: {'yes' if vd.get('unexplained') else 'no'}</li>")
+                if vd.get("protocol_proposal"):
+                    items.append("<li><b>Next acquisition</b>: <pre>" + html.escape(vd["protocol_proposal"])
+                                 + "</pre></li>")
+                parts.append("<ul>" + "".join(items) + "</ul>")
+            parts.append(f"<details><summary>verdict.json</summary><pre>{html.escape(txt)}</pre></details>")
         for md in sorted(gap.glob("*.md")):
             parts.append(_md_table_to_html(md.read_text()))
         for png in sorted(gap.glob("*.png")):

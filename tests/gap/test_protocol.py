@@ -1,0 +1,30 @@
+"""Excitation check and acquisition-protocol proposal (GAP_DIAGNOSIS.md sec. 4)."""
+import pytest
+
+from selfsense.gap.benchmark import simulate_device_case
+from selfsense.gap.protocol import ELEMENTS, excitation_check, proposal
+
+
+@pytest.fixture(scope="module")
+def bench_case():
+    return simulate_device_case({}, 5, 10.0, 400.0)
+
+
+def test_benchmark_scenarios_contain_the_whole_protocol(bench_case):
+    trials, meta, _ = bench_case
+    chk = excitation_check(trials, meta)
+    assert chk["missing"] == []
+    assert "cal_protocol" in chk["present"]["symmetric_steps"]
+    assert "cal_protocol -> val_repeat" in chk["present"]["rest_then_repeat"]
+    assert "every protocol element" in proposal(chk)
+
+
+def test_sine_only_data_get_a_protocol_proposal(bench_case):
+    trials, meta, _ = bench_case
+    sines = meta[meta.index.isin(["cal_free", "val_blocked"])]   # sines only: no holds at high V, no steps
+    chk = excitation_check(trials, sines)
+    assert {"hold_high_V", "symmetric_steps", "rest_then_repeat"} <= set(chk["missing"])
+    text = proposal(chk)
+    for k in chk["missing"]:
+        assert ELEMENTS[k].split(" (")[-1].rstrip(")") in text
+    assert "symmetric" not in chk["present"]
