@@ -102,7 +102,7 @@ def test_campaign_scores_match_the_readme(campaign):
 
 def test_no_false_alarms_on_effect_free_device_simulations():
     """Device simulator (selfsense.sim), effect-free: the family-wise null calibration keeps alarms rare
-    (measured 0/18 effect-free cases in the 100-case run, docs/gap.md)."""
+    (measured 6 / 187 effect-free cases in the 1,000-case campaign, README)."""
     recs = [run_scenario(i, 11, "fast", effects={}, sim_kind="device") for i in range(6)]
     fa = np.mean([bool(r["prediction"]["effects"]) for r in recs])
     assert fa <= 1 / 6 + 1e-9

@@ -26,7 +26,8 @@ def test_diagnose_cli_writes_contract_files(tmp_path):
     # the excitation check runs on every dataset; the sample has no rest-then-repeat pair, so a protocol is proposed
     assert set(v["excitation"]["missing"]) | set(v["excitation"]["present"]) == {
         "hold_0V", "hold_high_V", "symmetric_steps", "rest_then_repeat"}
-    assert v["protocol_proposal"]
+    assert "rest_then_repeat" in v["excitation"]["missing"]
+    assert "repeated after a >= 60 s rest" in v["protocol_proposal"]
     # Shapley efficiency: the shares of the confirmed effects sum to before - after (mean over measurements)
     tot = sum(v["shapley_pts"].get("mean", {}).values())
     assert tot == pytest.approx(v["score_before"] - v["score_after_all"], abs=1e-9)

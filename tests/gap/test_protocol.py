@@ -27,4 +27,4 @@ def test_sine_only_data_get_a_protocol_proposal(bench_case):
     text = proposal(chk)
     for k in chk["missing"]:
         assert ELEMENTS[k].split(" (")[-1].rstrip(")") in text
-    assert "symmetric" not in chk["present"]
+    assert "symmetric_steps" not in chk["present"]

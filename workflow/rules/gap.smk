@@ -1,9 +1,11 @@
 # Sim-to-real gap diagnostic (GAP_DIAGNOSIS.md; code in src/selfsense/gap, docs/gap.md).
 # Included by the Snakefile. `gap_diagnose` runs per dataset (the report uses its verdict);
 # `gap_benchmark` is a campaign target, NOT part of the default run:
-#     snakemake --cores 2 gap_benchmark            (n, seed, tier from config["gap"]["benchmark"], defaults below)
+#     snakemake --cores 2 gap_benchmark   (n, seed, tier, estimator from config["gap"]["benchmark"], defaults below)
 #     e.g. snakemake --cores 2 gap_benchmark --configfile config.yaml bench.yaml
-#          with bench.yaml:  gap: {enabled: true, benchmark: {n: 200, seed: 1, tier: full}}
+#          with bench.yaml:  gap: {enabled: true, benchmark: {n: 1000, seed: 2026, tier: fast}}
+#     (tier full needs its own null calibration first: `selfsense gap calibrate --tier full ...`, merged into
+#      src/selfsense/gap/thresholds.json; without it every case stops with a KeyError naming that command)
 import os
 
 GAP_BENCH = {"n": 40, "seed": 1, "tier": "fast", "estimator": "sensing_ri", **config.get("gap", {}).get("benchmark", {})}

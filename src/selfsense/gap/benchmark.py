@@ -98,7 +98,7 @@ def _device_scenario(T: float, fs: float, seed: int | None = None) -> list[dict]
     ]
 
 
-def simulate_device_case(effects: dict, seed: int, T: float = 4.0, fs: float = 500.0, with_truth: bool = False,
+def simulate_device_case(effects: dict, seed: int, T: float = 10.0, fs: float = 400.0, with_truth: bool = False,
                          drive_seed: int | None = None):
     """In-memory case from the project's device simulator ``selfsense.sim`` (Preisach truth, physical effect
     forms), converted through ``selfsense.io.to_si`` and ``selfsense.signals.prepare_trial`` exactly like a disk
@@ -405,7 +405,13 @@ def _scenario_job(args) -> dict:
     i, seed, tier, sim_kind, estimator, out = args
     f = None if out is None else Path(out) / "scenarios" / f"{i}.json"
     if f is not None and f.exists():  # resume: a finished case is never recomputed (same seed -> same record)
-        return json.loads(f.read_text())
+        rec = json.loads(f.read_text())
+        got = (rec.get("seed"), rec.get("tier"), rec["manifest"].get("simulator"), rec["manifest"].get("estimator"))
+        if got != (int(seed), tier, sim_kind, estimator):
+            raise ValueError(f"{f}: existing case record was made with (seed, tier, simulator, estimator) = {got}, "
+                             f"this run asks for {(int(seed), tier, sim_kind, estimator)}; use another --out "
+                             "directory or remove the old scenarios/")
+        return rec
     rec = run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator)
     if f is not None:
         tmp = f.with_suffix(".json.tmp")
@@ -448,11 +454,15 @@ def studentised_thresholds(null_gains: dict, q: float = 0.95, floor: float = 0.0
     whose augmentation is flexible enough to fit the base-model mismatch (wide null) gets a high threshold; a
     member whose null gains stay near zero keeps a low one (a uniform additive shift, used before, let the widest
     member set everyone's threshold). On the null sample at most a fraction (1 - q) of the cases have ANY member
-    above its threshold. ``null_gains``: member -> list of gains, one per null case (same case order).
+    above its threshold (up to the granularity 1/n of a small sample). ``null_gains``: member -> list of gains,
+    one per null case (same case order).
     Returns (member -> threshold, T)."""
     if not null_gains:
         return {}, 1.0
-    n = min(len(v) for v in null_gains.values())
+    lens = {len(v) for v in null_gains.values()}
+    if len(lens) != 1:
+        raise ValueError(f"studentised_thresholds: every member needs one gain per null case, got lengths {sorted(lens)}")
+    n = lens.pop()
     scale = {k: float(max(np.quantile(v, q), floor)) for k, v in sorted(null_gains.items())}
     zmax = [max(null_gains[k][i] / scale[k] for k in null_gains) for i in range(n)]
     T = float(max(np.quantile(zmax, q), 1.0))

@@ -1,10 +1,12 @@
 """``selfsense gap ...``: the sim-to-real gap diagnostic and its blind benchmark.
 
-  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator fast|sensing] [--seed S] [--n-boot B]
-  selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full] [--jobs J] [--estimator sensing_ri]
-  selfsense gap scenario --i I --seed S --out FILE.json [--tier fast|full]      (one benchmark case)
-  selfsense gap aggregate SCENARIO_JSON... --out DIR                            (scores from case files)
-  selfsense gap calibrate --n N --seed S --out thresholds.json [--tier fast]    (null-calibrated thresholds)
+  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator sensing|sensing_ri|fast] [--seed S] [--n-boot B]
+  selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full] [--sim device|toy]
+                          [--estimator sensing_ri|sensing|fast] [--jobs J]
+  selfsense gap scenario --i I --seed S --out FILE.json [--tier fast|full] [--estimator ...]   (one case)
+  selfsense gap aggregate SCENARIO_JSON... --out DIR                                          (scores from case files)
+  selfsense gap calibrate --n N --seed S --out FILE.json [--tier fast|full] [--sim device|toy]
+                          [--estimator ...] [--jobs J]                     (null-calibrated thresholds)
 """
 from __future__ import annotations
 

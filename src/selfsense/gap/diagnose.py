@@ -34,17 +34,23 @@ DEFAULT_THRESHOLDS = {"screen_member": 0.0, "confirm_rel": 0.05, "unexplained": 
 
 def load_thresholds(kind: str = "device") -> dict:
     """Thresholds calibrated on effect-free simulations (package data ``thresholds.json``; the command that made
-    them is stored beside them). ``kind``: "device" (selfsense.sim + fast estimator, the default), "toy"
-    (toysim), "device_sensing" (selfsense.sim + the project estimator), "device_full" (full tier); see
-    ``benchmark.threshold_key``. Unknown kinds fall back to "device"."""
-    try:
-        txt = resources.files("selfsense.gap").joinpath("thresholds.json").read_text()
-        d = json.loads(txt)
-        if kind != "device" and kind in d:
-            d = d[kind]
-        return {**DEFAULT_THRESHOLDS, **d.get("thresholds", {})}
-    except (FileNotFoundError, json.JSONDecodeError):
-        return dict(DEFAULT_THRESHOLDS)
+    them is stored beside them). ``kind`` = ``benchmark.threshold_key(simulator, estimator, tier)``: "device"
+    (device simulator + fast estimator), "device_sensing" (project estimator), "device_sensing_ri" (RI + creep,
+    the benchmark's default), "toy". A kind without a calibration raises ``KeyError`` naming the command that
+    makes one (thresholds are specific to simulator, estimator and tier; falling back silently to another kind's
+    thresholds gave 8 false alarms in 8 effect-free cases in an earlier full-tier run)."""
+    d = json.loads(resources.files("selfsense.gap").joinpath("thresholds.json").read_text())
+    block = d if kind == "device" else d.get(kind)
+    if not isinstance(block, dict) or "thresholds" not in block:
+        known = ["device"] + sorted(k for k, v in d.items() if isinstance(v, dict) and "thresholds" in v)
+        parts = kind.split("_")
+        est = "sensing_ri" if "ri" in parts else ("sensing" if "sensing" in parts else "fast")
+        tier = "full" if parts[-1] == "full" else "fast"
+        raise KeyError(f"gap thresholds: no null calibration for {kind!r} in selfsense/gap/thresholds.json "
+                       f"(calibrated: {', '.join(known)}); make one with `selfsense gap calibrate --n 240 --seed 1 "
+                       f"--tier {tier} --sim {parts[0]} --estimator {est} --jobs 2 --out FILE` and merge it under "
+                       f"{kind!r}")
+    return {**DEFAULT_THRESHOLDS, **block["thresholds"]}
 
 
 # ----------------------------------------------------------------------------------------------- evaluation

@@ -55,9 +55,10 @@ def g_leak(df):
 
 
 def g_offset(df):
-    """Time since relay release and its square [s, s^2]."""
+    """Time since relay release and its square over a fixed 100 s [s, s^2 / 100 s] (the same meaning in trials of
+    any length)."""
     ta = t_active(df)
-    return np.column_stack([ta, ta**2 / max(ta.max(), 1e-9)])
+    return np.column_stack([ta, ta**2 / 100.0])
 
 
 def g_absorption(df):
@@ -188,7 +189,7 @@ class HCorrection:
             G = self._g(df)[act]
             y = _V(df)[act] - Q / self._cpt
             step = max(1, n_tot // 6000)
-            B = pi_design(Q, r, d)  # play histories computed on the full trial, then decimated
+            B = pi_design(Q, r, d)  # play histories over the active samples of the trial, then decimated
             X.append(np.column_stack([B[:, :6], G, B[:, 6:]])[::step])
             Y.append(y[::step])
         X, Y = np.vstack(X), np.concatenate(Y)
@@ -526,31 +527,46 @@ def _slew_limit(x: np.ndarray, t: np.ndarray, rate: float) -> np.ndarray:
 class CurrentLimitReconstruction:
     """Structural augmentation for amplifier limits (rate family). The actuator voltage is reconstructed from the
     command, ``V_c = gain u_cmd`` (thesis eq. 56); a current-limited amplifier cannot charge the capacitive load
-    faster than ``i_max / C`` and its true output lags the command. ``i_max`` is read off the calibration trials
-    (the largest shunt current, a plateau when the limit is active); per trial, C is the secant capacitance
-    ptp(q)/ptp(V). Transform: ``V_c <- rate_limit(gain u_cmd, i_max / C)``, ``V <- V_c - V_s``."""
+    faster than ``i_max / C`` and its true output lags the command.
+
+    Fit (calibration trials only): the shunt current must show a *plateau* at its largest value (>= ``plateau_s``
+    of consecutive samples within 2 % of the maximum; a smooth current peak does not give one, a linear voltage
+    ramp does); otherwise the augmentation is the identity. ``i_max`` is that maximum plus a 2 % margin, so on
+    data without a limit the rate limit does not engage (measured on an effect-free case: actuator-voltage
+    change 0.00 V RMS). Transform, per trial with C the
+    secant capacitance ptp(q)/ptp(V): ``V_c' = rate_limit(V_c, i_max / C)`` and ``V <- V - (V_c - V_c')`` (a
+    correction of V, so transforms of other augmentations applied before it are kept)."""
 
     name: str = "rate.amplifier"
+    plateau_s: float = 0.03
+    i_max_: float = float("inf")
 
     def fit(self, trials, meta, estimator) -> None:
         R = rig_params(estimator.rig)["R"]
-        imax = 0.0
-        for df in trials.values():
+        cur = {}
+        for t, df in trials.items():
             act = active(df)
             if act.any():
-                imax = max(imax, float(np.max(np.abs(df["V_s"].to_numpy(float)[act] - _relay_offset(df)))) / R)
-        self.i_max_ = imax
+                cur[t] = np.abs(df["V_s"].to_numpy(float) - _relay_offset(df)) / R * act
+        imax = max((float(np.max(c)) for c in cur.values()), default=0.0)
+        longest = 0.0
+        for t, c in cur.items():
+            dt = dt_of(trials[t]["t"].to_numpy())
+            runs = _runs(c >= 0.98 * imax)
+            longest = max(longest, max(((b - a) * dt for a, b in runs), default=0.0))
+        self.i_max_ = 1.02 * imax if imax > 0 and longest >= self.plateau_s else float("inf")
 
     def transform(self, df: pd.DataFrame) -> pd.DataFrame:
         act = active(df)
-        if not act.any() or not self.i_max_ > 0:
+        if not np.isfinite(self.i_max_) or not act.any():
             return df
         V, Q = _V(df)[act], _Q(df)[act]
         C = float(np.ptp(Q) / np.ptp(V)) if np.ptp(V) > 0 else 0.0
         if not C > 0:
             return df
         df = df.copy()
-        vc = _slew_limit(df["V_c"].to_numpy(float), df["t"].to_numpy(float), self.i_max_ / C)
+        vc0 = df["V_c"].to_numpy(float)
+        vc = _slew_limit(vc0, df["t"].to_numpy(float), self.i_max_ / C)
         df["V_c"] = vc
-        df["V"] = vc - df["V_s"].to_numpy(float)
+        df["V"] = _V(df) - (vc0 - vc)
         return df
