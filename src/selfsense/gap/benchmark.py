@@ -414,10 +414,23 @@ def _scenario_job(args) -> dict:
         return rec
     rec = run_scenario(i, seed, tier, sim_kind=sim_kind, estimator=estimator)
     if f is not None:
-        tmp = f.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(rec, indent=1, default=float))
-        tmp.replace(f)
+        from selfsense.io import atomic_write_text
+
+        atomic_write_text(f, json.dumps(rec, indent=1, default=float))
     return rec
+
+
+def _map_jobs(fn, args: list, jobs: int, desc: str) -> list:
+    """``[fn(a) for a in args]``, in worker processes when ``jobs`` > 1 (order kept; progress bar on a terminal
+    only: disable=None keeps non-interactive logs and Snakemake rule logs quiet)."""
+    from tqdm import tqdm
+
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as ex:
+            return list(tqdm(ex.map(fn, args, chunksize=1), total=len(args), desc=desc, unit="case", disable=None))
+    return [fn(a) for a in tqdm(args, desc=desc, unit="case", disable=None)]
 
 
 def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None, command: str = "",
@@ -425,20 +438,10 @@ def run_benchmark(n: int, seed: int, tier: str = "fast", out: Path | None = None
     """``n`` blind cases (case i uses seed (seed, i)), scored. With ``out``, every case is written to
     ``out/scenarios/<i>.json`` as soon as it finishes and existing case files are reused (an interrupted campaign
     resumes); ``jobs`` > 1 runs cases in worker processes (results do not depend on ``jobs``)."""
-    from tqdm import tqdm
-
     if out is not None:
         (Path(out) / "scenarios").mkdir(parents=True, exist_ok=True)
     args = [(i, seed, tier, sim_kind, estimator, out) for i in range(n)]
-    # progress bar on a terminal only (disable=None: quiet in non-interactive logs and Snakemake rule logs)
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            recs = list(tqdm(ex.map(_scenario_job, args, chunksize=1), total=n, desc="gap benchmark",
-                             unit="case", disable=None))
-    else:
-        recs = [_scenario_job(a) for a in tqdm(args, desc="gap benchmark", unit="case", disable=None)]
+    recs = _map_jobs(_scenario_job, args, jobs, "gap benchmark")
     recs.sort(key=lambda r: r["case"])
     sc = score(recs)
     if out is not None:
@@ -485,16 +488,8 @@ def calibrate_thresholds(n: int, seed: int, tier: str = "fast", q: float = 0.95,
     members' relative refit gains give the studentised family-wise thresholds (:func:`studentised_thresholds`);
     the q-quantiles of the best gain and of the generic model-error-model gain give the other two. ``jobs`` > 1
     runs the null cases in worker processes (results do not depend on it)."""
-    from tqdm import tqdm
-
     args = [(i, seed, tier, sim_kind, estimator) for i in range(n)]
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            res = list(tqdm(ex.map(_null_job, args), total=n, desc="null calibration", unit="case", disable=None))
-    else:
-        res = [_null_job(a) for a in tqdm(args, desc="null calibration", unit="case", disable=None)]
+    res = _map_jobs(_null_job, args, jobs, "null calibration")
     conf, gen, per = [], [], {}
     for rel, g in res:
         conf.append(max(rel.values(), default=0.0))

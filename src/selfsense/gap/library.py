@@ -28,6 +28,8 @@ import pandas as pd
 from .model import fit_fast_pi, pi_design, rig_params, solve_signed_nnls, _play
 from .model import sup_thresholds as _sup_thresholds, thresholds as _thresholds
 from .protocol import _runs
+from selfsense.signals import SignalError, relay_offset
+
 from .signals import active, branch, deriv, dt_of, first_loading, leaky_integral, lowpass, t_active
 
 __all__ = ["Effect", "LIBRARY", "FAMILIES", "effect", "HCorrection", "RegressorAug", "Composite"]
@@ -182,20 +184,20 @@ class HCorrection:
         r = _thresholds(self._qs, n_play)
         d = _sup_thresholds(self._qs, 4)
         X, Y = [], []
-        n_tot = sum(len(q) for q in Qs)
+        step = max(1, sum(len(q) for q in Qs) // 6000)
+        n0 = 2 + len(d)  # free-sign columns of pi_design: 1, Q and the superposition terms
         for t, Q in zip(free, Qs):
             df = trials[t]
             act = active(df)
             G = self._g(df)[act]
             y = _V(df)[act] - Q / self._cpt
-            step = max(1, n_tot // 6000)
             B = pi_design(Q, r, d)  # play histories over the active samples of the trial, then decimated
-            X.append(np.column_stack([B[:, :6], G, B[:, 6:]])[::step])
+            X.append(np.column_stack([B[:, :n0], G, B[:, n0:]])[::step])
             Y.append(y[::step])
         X, Y = np.vstack(X), np.concatenate(Y)
-        nf = 6 + X.shape[1] - 6 - n_play
+        nf = X.shape[1] - n_play  # free-sign columns: pi_design's and the correction's
         c = solve_signed_nnls(X, Y, nf)
-        self.coef_ = c[6:nf]
+        self.coef_ = c[n0:nf]
 
     def transform(self, df: pd.DataFrame) -> pd.DataFrame:
         if self.coef_ is None:
@@ -501,12 +503,11 @@ def effect(name: str) -> Effect:
 
 
 def _relay_offset(df) -> float:
-    relay = df["relay"].to_numpy() >= 0.5
-    runs = _runs(relay)
-    if not runs:
+    """Shunt offset over the first shorted segment (``selfsense.signals.relay_offset``); 0 without one."""
+    try:
+        return relay_offset(df["V_s"].to_numpy(float), df["relay"].to_numpy(float))
+    except SignalError:
         return 0.0
-    a, b = runs[0]
-    return float(np.mean(df["V_s"].to_numpy(float)[a:b]))
 
 
 def _slew_limit(x: np.ndarray, t: np.ndarray, rate: float) -> np.ndarray:

@@ -54,6 +54,7 @@ def excitation_check(trials: dict, meta) -> dict:
     for tid in meta.index:
         df = trials[tid]
         t, V = df["t"].to_numpy(float), df["V"].to_numpy(float)
+        n1s = int(round(1.0 / dt_of(t)))
         act = active(df)
         holds = _holds(V, t, act, Vm)
         seen_high = np.maximum.accumulate(np.where(act, V, 0.0)) > 0.5 * Vm
@@ -65,7 +66,7 @@ def excitation_check(trials: dict, meta) -> dict:
         ent = []
         for a, _, l in holds:
             if l > 0.1 * Vm and a > 0:
-                prev = V[max(0, a - int(round(1.0 / dt_of(t)))):a]
+                prev = V[max(0, a - n1s):a]
                 if len(prev):
                     ent.append((l, np.sign(l - float(np.min(prev)) - (float(np.max(prev)) - l))))
         for i, (l1, s1) in enumerate(ent):
@@ -73,10 +74,7 @@ def excitation_check(trials: dict, meta) -> dict:
                 found["symmetric_steps"].append(tid)
                 break
     # rest-then-repeat: two trials with the same command (within 1 % of the range), not adjacent in time
-    cmds = {}
-    for tid in meta.index:
-        u = trials[tid]["u_cmd"].to_numpy(float) if "u_cmd" in trials[tid] else trials[tid]["V"].to_numpy(float)
-        cmds[tid] = u
+    cmds = {tid: trials[tid]["u_cmd" if "u_cmd" in trials[tid] else "V"].to_numpy(float) for tid in meta.index}
     ids = list(meta.index)
     for i, a in enumerate(ids):
         for b in ids[i + 2:]:
