@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from selfsense.determinism import JSON_RTOL, compare_tree
 from selfsense.gap.benchmark import run_scenario, score
 
 
@@ -70,10 +71,11 @@ def rerun():
 
 def test_campaign_cases_are_reproduced(campaign, rerun):
     """Case i of seed 2026 rerun here gives the committed campaign record (per-case seeds, no state shared
-    between cases): the same manifest, truth and verdict; numbers to 1e-6 (BLAS threading may differ)."""
+    between cases): the same manifest, truth and verdict. The records were made on another machine: manifest
+    numbers agree to JSON_RTOL, scores to 1e-6 (determinism contract, docs/reproducibility.md)."""
     for i, r in rerun.items():
         ref = campaign[i]
-        assert r["manifest"] == ref["manifest"]
+        assert compare_tree(r["manifest"], ref["manifest"], rtol=JSON_RTOL) == []
         assert r["truth"]["present"] == ref["truth"]["present"]
         assert r["truth"]["true_shrink"] == pytest.approx(ref["truth"]["true_shrink"], rel=1e-6, abs=1e-9)
         for k in ("effects", "families", "unexplained"):

@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from selfsense.determinism import compare_daq_log, compare_dataset_dirs
 from selfsense.sim import EFFECTS, load_device, simulate_dataset, simulate_scenario_in_memory, simulate_trial
 from selfsense.sim.cli import main as cli_main
 from selfsense.sim.simulate import load_scenario, write_parquet
@@ -115,11 +116,13 @@ def test_dataset_passes_io_validation(tmp_path):
     assert io.validate_dataset(tmp_path / "ds") == []
 
 
-def test_committed_sample_is_regenerated_bit_identically(tmp_path):
+def test_committed_sample_is_regenerated_within_the_determinism_contract(tmp_path):
+    """data/raw/sample was made on another machine: regenerated here it must agree within the stated
+    cross-machine tolerances (selfsense.determinism, docs/reproducibility.md), not bit for bit."""
     assert cli_main(["--preset", "sample", "--out", str(tmp_path / "sample")]) == 0
     for name in ("sample", "sample.truth"):
         committed = ROOT / "data" / "raw" / name
-        assert _hashes(tmp_path / name) == _hashes(committed), name
+        assert compare_dataset_dirs(tmp_path / name, committed, truth=name.endswith(".truth")) == [], name
 
 
 def test_committed_tweezer_sim_one_trial(tmp_path):
@@ -129,7 +132,8 @@ def test_committed_tweezer_sim_one_trial(tmp_path):
     res = simulate_scenario_in_memory("tweezer_sim", only={name})
     write_parquet(res[name][0], tmp_path / f"{name}.parquet")
     committed = ROOT / "data" / "raw" / "tweezer_sim" / f"{name}.parquet"
-    assert (tmp_path / f"{name}.parquet").read_bytes() == committed.read_bytes()
+    got = pd.read_parquet(tmp_path / f"{name}.parquet")
+    assert compare_daq_log(got, pd.read_parquet(committed), name) == []
 
 
 def test_effect_registry_documented():
