@@ -2,12 +2,15 @@
 # Run: snakemake --cores 2            (all datasets in config.yaml)
 #      snakemake --cores 2 --configfile other.yaml
 # All science lives in src/selfsense; scripts in workflow/scripts are thin.
+import os
+
 from snakemake.utils import min_version, validate
 
 min_version("8.10")
 
 
-configfile: "config.yaml"
+# the defaults shipped beside this Snakefile; --configfile / --config layer on top of them (partial files are fine)
+configfile: os.path.join(workflow.basedir, "config.yaml")
 
 
 validate(config, "workflow/schemas/config.schema.yaml")

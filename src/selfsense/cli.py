@@ -1,53 +1,102 @@
 """The ``selfsense`` command.
 
 Each subcommand lives with the subpackage that owns it and is imported lazily, so that
-``selfsense validate`` does not pay for numba or cvxpy start-up.
+``selfsense validate`` does not pay for numba or cvxpy start-up. ``selfsense <command> --help`` describes every
+option of a command.
 
-Subcommands
------------
-validate DATASET_DIR       check a raw dataset against the contract (selfsense.io.cli)
-simulate ...               write a virtual-tweezer dataset (selfsense.sim.cli)
-run ...                    run the Snakemake pipeline (selfsense.pipeline_cli)
-gap diagnose|benchmark     sim-to-real gap diagnostic (selfsense.gap.cli)
-ri ...                     RI vs modified-PI model comparison (selfsense.hysteresis.ri_cli)
-estimate ...               chunked / streaming estimation of a long log (selfsense.sensing.cli)
+Errors a user can cause (a bad dataset, a missing file, an invalid value) end with one line on stderr,
+``selfsense <command>: error: <what, where, what was expected>``, and exit code 2, never a traceback; set
+``SELFSENSE_TRACEBACK=1`` to see the traceback as well.
 """
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
-#: subcommand -> (module, function); each function takes ``argv: list[str]`` and returns an exit code.
-SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "validate": ("selfsense.io.cli", "main"),
-    "simulate": ("selfsense.sim.cli", "main"),
-    "run": ("selfsense.pipeline_cli", "main"),
-    "gap": ("selfsense.gap.cli", "main"),
-    "ri": ("selfsense.hysteresis.ri_cli", "main"),
-    "estimate": ("selfsense.sensing.cli", "main"),
-    "fit-external": ("selfsense.hysteresis.external", "main"),
+#: subcommand -> (module, function, one-line description); each function takes ``argv: list[str]`` and returns an
+#: exit code.
+SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
+    "init": ("selfsense.init_cli", "main", "write a template dataset folder (rig.yaml, trials.csv) for your own rig"),
+    "validate": ("selfsense.io.cli", "main", "check a raw dataset folder against the data contract"),
+    "simulate": ("selfsense.sim.cli", "main", "write a virtual-tweezer dataset and its truth folder"),
+    "run": ("selfsense.pipeline_cli", "main",
+            "run the Snakemake pipeline in the current directory (options go to Snakemake)"),
+    "estimate": ("selfsense.sensing.cli", "main",
+                 "stream a long DAQ log through a fitted model (CSV, Parquet, TDMS, MAT)"),
+    "gap": ("selfsense.gap.cli", "main", "sim-to-real gap diagnostic (diagnose, benchmark, calibrate, ...)"),
+    "ri": ("selfsense.hysteresis.ri_cli", "main", "RI hysteresis model checks against published data"),
+    "fit-external": ("selfsense.hysteresis.external", "main",
+                     "fit the hysteresis models to the external measured data sets"),
 }
 
 
+def version() -> str:
+    """Installed package version (``importlib.metadata``), falling back to ``selfsense.__version__``."""
+    try:
+        from importlib.metadata import version as _v
+
+        return _v("selfsense")
+    except Exception:  # pragma: no cover - not installed as a distribution
+        from selfsense import __version__
+
+        return __version__
+
+
 def _usage() -> str:
-    lines = ["usage: selfsense <command> [args]", "", "commands:"]
-    for name, (mod, _) in SUBCOMMANDS.items():
-        lines.append(f"  {name:<14} ({mod})")
+    lines = ["usage: selfsense [--version] [--help] <command> [options]", "",
+             "Force and displacement self-sensing for amplified piezoelectric actuators.", "", "commands:"]
+    for name, (_, _, desc) in SUBCOMMANDS.items():
+        lines.append(f"  {name:<13} {desc}")
+    lines += ["", "'selfsense <command> --help' describes the options of a command."]
     return "\n".join(lines)
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    errs: list[type[BaseException]] = [ValueError, OSError, KeyError]
+    try:
+        from selfsense.io.errors import ContractError
+
+        errs.insert(0, ContractError)
+    except Exception:  # pragma: no cover
+        pass
+    return tuple(errs)
+
+
+def _one_line(exc: BaseException) -> str:
+    msg = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    if isinstance(exc, OSError) and getattr(exc, "filename", None) and exc.strerror:
+        msg = f"{exc.filename}: {exc.strerror}"
+    return " ".join((msg or type(exc).__name__).split())
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in {"-h", "--help"}:
-        print(_usage())
+        print(_usage(), file=sys.stdout if argv else sys.stderr)
         return 0 if argv else 2
+    if argv[0] in {"-V", "--version"}:
+        print(f"selfsense {version()}")
+        return 0
     cmd, rest = argv[0], argv[1:]
     if cmd not in SUBCOMMANDS:
-        print(f"selfsense: unknown command {cmd!r}\n\n{_usage()}", file=sys.stderr)
+        print(f"selfsense: error: unknown command {cmd!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    mod_name, fn_name = SUBCOMMANDS[cmd]
-    module = importlib.import_module(mod_name)
-    return int(getattr(module, fn_name)(rest) or 0)
+    mod_name, fn_name, _ = SUBCOMMANDS[cmd]
+    try:
+        module = importlib.import_module(mod_name)
+        return int(getattr(module, fn_name)(rest) or 0)
+    except KeyboardInterrupt:
+        print(f"selfsense {cmd}: interrupted", file=sys.stderr)
+        return 130
+    except _user_errors() as exc:
+        if os.environ.get("SELFSENSE_TRACEBACK"):
+            raise
+        problems = getattr(exc, "problems", None)
+        lines = [" ".join(str(p).split()) for p in problems] if problems else [_one_line(exc)]
+        for line in lines:  # a contract error: one line per problem
+            print(f"selfsense {cmd}: error: {line}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,44 +1,176 @@
-"""``selfsense run``: run the Snakemake pipeline of this checkout and print the path of every report.
+"""``selfsense run``: run the selfsense Snakemake pipeline in the current directory and print each report's path.
 
-Usage: ``selfsense run [--cores N] [--configfile FILE] [extra snakemake arguments...]``
+usage: selfsense run [SNAKEMAKE OPTIONS ...] [TARGETS ...]
 
-It must be started from the project root (where ``Snakefile`` and ``config.yaml`` live). The last lines printed
-are the paths of the HTML reports of the datasets listed in the config.
+Every option is handed to Snakemake unchanged (``snakemake --help`` lists them), for example
+``--config on_bad_trial=skip``, ``--configfile mine.yaml``, ``--dry-run``, ``--profile workflow/profiles/slurm``.
+``selfsense run`` only adds what is missing:
+
+* ``--snakefile``: the workflow shipped with the package (Snakefile, rules, scripts, schema and default config),
+  so it works from any directory, inside a checkout or not;
+* ``--directory``: the current directory, so ``raw_dir`` / ``results_dir`` and every relative path of the
+  config resolve from where you are (``data/raw/<dataset>`` and ``results/<dataset>`` by default);
+* ``--cores 2`` unless ``--cores`` / ``--jobs`` / ``--profile`` / ``--executor`` is given;
+* ``--configfile config.yaml`` if the working directory holds a ``config.yaml`` and none is given.
+
+Configuration is layered: the packaged defaults (``selfsense run --print-config``), then each ``--configfile`` in
+order (a partial file, e.g. only ``datasets: [mine]``, is enough), then ``--config key=value`` overrides.
+The last lines printed are the paths of the HTML reports, one per dataset. Exit code: Snakemake's, or 2 for a
+configuration that names a dataset folder that does not exist.
 """
 from __future__ import annotations
 
-import argparse
+import copy
+import os
 import subprocess
 import sys
+from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import yaml
 
+__all__ = ["main", "workflow_dir", "default_config", "layered_config"]
+
+_CORES_FLAGS = ("--cores", "-c", "--jobs", "-j", "--profile", "--executor", "-e", "--workflow-profile")
+
+
+def workflow_dir() -> Path:
+    """Folder holding the shipped ``Snakefile``, ``config.yaml`` and ``workflow/`` (rules, scripts, schemas).
+
+    In a checkout (editable install) these are the repository's own files (``src/selfsense/_workflow`` links to
+    them); in an installed wheel they are package data of the same name."""
+    d = Path(str(resources.files("selfsense") / "_workflow"))
+    if not (d / "Snakefile").exists():  # pragma: no cover - broken installation
+        raise FileNotFoundError(f"the selfsense workflow is missing from the installation ({d}/Snakefile)")
+    return d
+
+
+def default_config() -> dict:
+    """The packaged default configuration (``config.yaml`` beside the shipped Snakefile)."""
+    return yaml.safe_load((workflow_dir() / "config.yaml").read_text()) or {}
+
+
+def _deep_update(base: dict, new: dict) -> dict:
+    """Recursive dict merge with Snakemake's semantics (``snakemake.utils.update_config``): dicts merge, anything
+    else (lists included) is replaced."""
+    for k, v in (new or {}).items():
+        if isinstance(v, dict) and isinstance(base.get(k), dict):
+            _deep_update(base[k], v)
+        else:
+            base[k] = copy.deepcopy(v)
+    return base
+
+
+def _parse_value(v: str) -> Any:
+    """A ``--config`` value as Snakemake reads it: YAML (numbers, booleans, lists, mappings), else the string."""
+    try:
+        return yaml.safe_load(v)
+    except yaml.YAMLError:
+        return v
+
+
+def _option_values(argv: list[str], names: tuple[str, ...]) -> list[str]:
+    """Values of an option that takes one or more values (``--configfile a b``, ``--configfile=a``)."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        hit = next((n for n in names if a == n or a.startswith(n + "=")), None)
+        if hit is None:
+            i += 1
+            continue
+        if a.startswith(hit + "="):
+            out.append(a.split("=", 1)[1])
+            i += 1
+            continue
+        i += 1
+        while i < len(argv) and not argv[i].startswith("-"):
+            out.append(argv[i])
+            i += 1
+    return out
+
+
+def _has_option(argv: list[str], names: tuple[str, ...]) -> bool:
+    return any(a == n or a.startswith(n + "=") or (len(n) == 2 and a.startswith(n) and not a.startswith("--"))
+               for a in argv for n in names)
+
+
+def layered_config(argv: list[str], workdir: Path) -> dict:
+    """The configuration Snakemake will see: packaged defaults <- each ``--configfile`` <- ``--config k=v``."""
+    cfg = default_config()
+    for f in _option_values(argv, ("--configfile", "--configfiles")):
+        p = Path(f)
+        data = yaml.safe_load(p.read_text()) if p.exists() else None
+        if data is not None and not isinstance(data, dict):
+            raise ValueError(f"{f}: expected a YAML mapping of configuration keys, found {type(data).__name__}")
+        _deep_update(cfg, data or {})
+    overrides: dict = {}
+    for kv in _option_values(argv, ("--config", "-C")):
+        if "=" not in kv:
+            raise ValueError(f"--config {kv!r}: expected KEY=VALUE")
+        k, v = kv.split("=", 1)
+        overrides[k] = _parse_value(v)
+    return _deep_update(cfg, overrides)
+
+
+def _help() -> str:
+    return __doc__.strip().replace("``", "") + "\n"
+
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense run", description=__doc__.splitlines()[0])
-    ap.add_argument("--cores", default="2")
-    ap.add_argument("--configfile", default=None)
-    ap.add_argument("--directory", default=".")
-    args, extra = ap.parse_known_args(argv)
-    root = Path(args.directory).resolve()
-    snakefile = root / "Snakefile"
-    if not snakefile.exists():
-        print(f"selfsense run: no Snakefile in {root}; run it from the project root", file=sys.stderr)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-h", "--help"):
+        print(_help())
+        return 0
+    if argv and argv[0] == "--print-config":
+        print(yaml.safe_dump(default_config(), sort_keys=False), end="")
+        return 0
+    cwd = Path.cwd()
+    wd_opt = _option_values(argv, ("--directory", "-d"))
+    workdir = (cwd / wd_opt[-1]).resolve() if wd_opt else cwd
+    extra: list[str] = []
+    if not _has_option(argv, ("--snakefile", "-s")):
+        extra += ["--snakefile", str(workflow_dir() / "Snakefile")]
+    if not wd_opt:
+        extra += ["--directory", str(workdir)]
+    if not _has_option(argv, _CORES_FLAGS):
+        extra += ["--cores", "2"]
+    if not _has_option(argv, ("--configfile", "--configfiles")) and (workdir / "config.yaml").is_file():
+        extra += ["--configfile", str(workdir / "config.yaml")]
+    for f in _option_values(argv, ("--configfile", "--configfiles")):
+        if not Path(f).is_file():
+            print(f"selfsense run: error: --configfile {f}: no such file (relative paths start at {cwd})",
+                  file=sys.stderr)
+            return 2
+    cmd_args = extra + argv
+    try:
+        cfg = layered_config(cmd_args, workdir)
+    except (ValueError, OSError, yaml.YAMLError) as exc:
+        print(f"selfsense run: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    cmd = [sys.executable, "-m", "snakemake", "--cores", str(args.cores), "--snakefile", str(snakefile),
-           "--directory", str(root)]
-    if args.configfile:
-        cmd += ["--configfile", args.configfile]
-    cmd += extra
-    rc = subprocess.call(cmd, cwd=root)
+    raw = workdir / str(cfg.get("raw_dir", "data/raw"))
+    datasets = [str(d) for d in (cfg.get("datasets") or [])]
+    missing = [d for d in datasets if not (raw / d).is_dir()]
+    if missing:
+        print(f"selfsense run: error: dataset folder(s) {', '.join(str(raw / d) for d in missing)} not found "
+              f"(config 'datasets' {datasets} under raw_dir '{cfg.get('raw_dir', 'data/raw')}', relative to "
+              f"{workdir}); create one with 'selfsense init' or 'selfsense simulate', or set --config "
+              f"raw_dir=... datasets=[...]", file=sys.stderr)
+        return 2
+    rc = subprocess.call([sys.executable, "-m", "snakemake", *cmd_args], cwd=cwd)
     if rc != 0:
         return rc
-    cfg_path = Path(args.configfile) if args.configfile else root / "config.yaml"
-    cfg = yaml.safe_load(cfg_path.read_text())
-    results = root / cfg.get("results_dir", "results")
-    for d in cfg["datasets"]:
+    if any(a in ("-n", "--dry-run", "--dryrun") for a in argv):
+        return 0
+    results = workdir / str(cfg.get("results_dir", "results"))
+    for d in datasets:
         report = results / d / "report.html"
         if report.exists():
-            print(f"report: {report.relative_to(root) if report.is_relative_to(root) else report}")
+            shown = report.relative_to(cwd) if report.is_relative_to(cwd) else report
+            print(f"report: {shown}")
     return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

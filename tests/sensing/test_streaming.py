@@ -250,8 +250,10 @@ def test_cli_chunked_equals_batch(fitted, tmp_path):
     bad = raw.drop(columns=["v_shunt"])
     bad.to_parquet(tmp_path / "bad.parquet", index=False)
     out2 = tmp_path / "out2.parquet"
-    assert main(["--model", str(model), "--dataset", str(d), "--log", str(tmp_path / "bad.parquet"),
-                 "--out", str(out2)]) != 0
+    from selfsense.cli import main as selfsense_main
+
+    assert selfsense_main(["estimate", "--model", str(model), "--dataset", str(d), "--log",
+                           str(tmp_path / "bad.parquet"), "--out", str(out2)]) == 2
     assert not out2.exists()
 
 

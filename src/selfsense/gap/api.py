@@ -8,7 +8,7 @@ __all__ = ["run_diagnose", "run_scenario_to_json", "aggregate_scenarios"]
 
 
 def run_diagnose(dataset_dir, out_dir, estimator: str = "sensing", seed: int = 0, n_boot: int = 30,
-                 figures: bool = True):
+                 figures: bool = True, progress: bool | None = False):
     """Load a raw dataset (and its truth folder if present), diagnose, write the contract files; returns the
     :class:`~selfsense.gap.diagnose.Diagnosis`.
 
@@ -20,7 +20,7 @@ def run_diagnose(dataset_dir, out_dir, estimator: str = "sensing", seed: int = 0
 
     case = load_case(dataset_dir, with_truth=True)
     try:
-        d = diagnose(case, estimator=estimator, seed=seed, n_boot=n_boot)
+        d = diagnose(case, estimator=estimator, seed=seed, n_boot=n_boot, progress=progress)
     except Exception as exc:  # noqa: BLE001 - report and fall back, never a silent fix
         if estimator == "fast":
             raise

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from importlib import resources
+import sys
 from typing import Any, Sequence
 
 import numpy as np
@@ -115,6 +116,7 @@ class Evaluator:
         self.ranges = measurement_ranges(case)
         self.cache: dict[frozenset, Evaluation] = {}
         self.n_fits = 0
+        self.bar = None  # optional tqdm bar advanced by one per refit (see diagnose(progress=...))
 
     def blocks(self, n_per_trial: int = 8) -> dict:
         out = {}
@@ -131,6 +133,10 @@ class Evaluator:
         model = make_estimator(self.kind, self.case.rig, augs, **self.kw)
         model.fit(self.case.trials, self.case.meta)
         self.n_fits += 1
+        if self.bar is not None:
+            if self.bar.total is not None and self.bar.n >= self.bar.total:
+                self.bar.total = self.bar.n + 1
+            self.bar.update(1)
         need = {t for rows in self.rows.values() for t, _, _ in rows}
         est = {t: model.estimate(self.case.trials[t]) for t in need}
         error, per_trial, e = {}, {}, {}
@@ -280,14 +286,21 @@ class Diagnosis:
 
 def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None, n_boot: int = 30,
              seed: int = 0, max_effects: int = 3, with_budget: bool = True, ci_boot: int = 200,
-             max_candidates: int = 14, **est_kw) -> Diagnosis:
+             max_candidates: int = 14, progress: bool | None = False, **est_kw) -> Diagnosis:
     """Run the whole diagnostic on one dataset (no truth needed; the truth folder only adds the stage budget).
 
     Returns :class:`Diagnosis` with the contract tables (attribution, budget, shrink) and the verdict.
+    ``progress``: a terminal progress bar (stderr) counting model refits, the time-consuming unit; its total is an
+    upper bound (base fit, structural search, Shapley refits) refined as the search proceeds. ``None`` shows it
+    only on a terminal, ``False`` (default) never.
     """
+    from tqdm import tqdm
+
     thr = {**load_thresholds("device" if estimator == "fast" else f"device_{estimator}"), **(thresholds or {})}
     excitation = excitation_check(case.trials, case.meta)
     ev = Evaluator(case, estimator, **est_kw)
+    ev.bar = bar = tqdm(total=1, desc="gap diagnose: base fit", unit="refit", disable=None if progress is None else not progress,
+                        file=sys.stderr) if progress is not False else None
     base = ev(frozenset())
     screen = Screen(case, base, ev.rows, LIBRARY)
 
@@ -299,6 +312,10 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     # ranks; every selection below is decided by refit on calibration + held-out error)
     cands = [n for n in sorted(gains, key=lambda n: -gains[n]) if gains[n] > thr["screen_member"]][:max_candidates]
     blocks = ev.blocks()
+    if bar is not None:  # upper bound: greedy path over the candidates, then Shapley subsets of <= max_effects
+        bar.total = bar.n + sum(max(len(cands) - k, 0) for k in range(max_effects)) + 2 ** min(max_effects, len(cands))
+        bar.set_description("gap diagnose: structural search")
+        bar.refresh()
 
     def block_stats(S):
         e = ev(S)
@@ -360,6 +377,11 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     chosen = [(n, gains[n]) for n in cands]
 
     # --- attribution: exact Shapley over confirmed effects (2^k refits), per measurement and overall
+    if bar is not None:
+        bar.total = bar.n + 2 ** len(confirmed) + len(confirmed)
+        bar.set_description("gap diagnose: attribution")
+        bar.refresh()
+
     def val(m):
         return lambda S: base.error[m] - ev(S).error[m] if m != "mean" else base.score - ev(S).score
 
@@ -416,6 +438,10 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
         "protocol_proposal": proposal(excitation),
     }
     figs = {"base": base, "final": final, "ev": ev}
+    if bar is not None:
+        bar.total = bar.n
+        bar.close()
+        ev.bar = None
     return Diagnosis(attribution, budget, shrink, verdict, figs)
 
 

@@ -138,10 +138,10 @@ def to_markdown(rows) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense fit-external", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="selfsense fit-external", description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--out", type=Path, default=None, help="write the markdown table to this file")
     ap.add_argument("--data-dir", type=Path, default=None, help="external data folder (default ../shared/data/external)")
-    ap.add_argument("--solver", default="CLARABEL")
+    ap.add_argument("--solver", default="CLARABEL", help="cvxpy QP solver (default CLARABEL)")
     args = ap.parse_args(argv)
     rows = run(args.data_dir, solver=args.solver)
     md = ("RMS / max error in % of the evaluation output range; modified PI = 15 play, 15 superposition, "

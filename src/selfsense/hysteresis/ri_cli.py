@@ -91,7 +91,8 @@ def slac_comparison(data_dir=None, precondition: bool = True, include_pi: bool =
 
 
 def _cmd_compare_slac(argv) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense ri compare-slac")
+    ap = argparse.ArgumentParser(prog="selfsense ri compare-slac", allow_abbrev=False,
+                                 description="RI vs modified-PI model on the SLAC quadrupole magnet data")
     ap.add_argument("--data", default=None, help="folder with strdat.ru3/strdat.ru4 (default ../shared/...)")
     ap.add_argument("--out", default=None, help="also write the Markdown table to this file")
     ap.add_argument("--smooth", type=float, default=SLAC_SMOOTH, help="RI regularisation weight (0 = plain LS)")
@@ -115,9 +116,10 @@ def _cmd_compare_slac(argv) -> int:
 
 def _cmd_validate_table(argv) -> int:
     from .ri_dynamics import validation_table
-    ap = argparse.ArgumentParser(prog="selfsense ri validate-table")
-    ap.add_argument("--out", default=None)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = argparse.ArgumentParser(prog="selfsense ri validate-table", allow_abbrev=False,
+                                 description="validation table of the RI model with vibration and creep sub-models")
+    ap.add_argument("--out", default=None, help="also write the Markdown table to this file")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the synthetic test signals (default 0)")
     a = ap.parse_args(argv)
     rows, info = validation_table(seed=a.seed)
     md = (info + "\n\n" + markdown_table(

@@ -13,7 +13,7 @@ from .dataset import _dataset_problems
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense validate", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="selfsense validate", description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("dataset_dir", nargs="+", help="dataset folder(s), e.g. data/raw/tweezer_sim")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     rc = 0

@@ -27,7 +27,7 @@ _AUX = ("q", "V", "V_H", "V_p", "dx_raw", "f_raw")
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="selfsense estimate", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="selfsense estimate", description=__doc__.split("\n\n")[0], allow_abbrev=False)
     p.add_argument("--model", required=True, help="fitted estimator JSON (results/<d>/model/sensing.json)")
     p.add_argument("--dataset", required=True, help="dataset directory holding rig.yaml (data/raw/<d>)")
     p.add_argument("--log", required=True, help="raw DAQ log (.parquet) with t, u_cmd, v_shunt[, relay]")
@@ -109,12 +109,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"selfsense estimate: error: --offset must be 'relay' or a number of volts, got {offset!r}",
                   file=sys.stderr)
             return 2
-    try:
-        n = estimate_log(args.model, args.dataset, args.log, args.out, chunk=args.chunk, full=args.full,
-                         offset=offset)
-    except (ValueError, OSError, KeyError) as exc:  # StreamError, ContractError, missing files, bad columns
-        print(f"selfsense estimate: error: {exc}", file=sys.stderr)
-        return 1
+    # StreamError, ContractError, missing files, bad columns: one line per problem and exit 2 (selfsense.cli)
+    n = estimate_log(args.model, args.dataset, args.log, args.out, chunk=args.chunk, full=args.full, offset=offset)
     print(f"selfsense estimate: {n} samples -> {args.out}", file=sys.stderr)
     return 0
 

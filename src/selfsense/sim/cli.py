@@ -14,7 +14,7 @@ __all__ = ["main"]
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense simulate", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="selfsense simulate", description=__doc__.split("\n\n")[0], allow_abbrev=False)
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--scenario", help="scenario YAML file")
     src.add_argument("--preset", choices=["tweezer_sim", "sample"], help="packaged scenario")
