@@ -1,8 +1,8 @@
 """selfsense: force and displacement self-sensing for amplified piezoelectric actuators.
 
-The science follows three seed documents (see ``../shared/seeds``):
+The science follows three seed documents, cited by file name (references in CITATION.cff):
 ``000_18d138f03f1777c3.txt`` (thesis), ``001_972cacfaa08ad91a.txt`` (on-site calibration paper) and
 ``002_7d89b7147aad52e4.txt`` (one-sided rate-independent hysteresis model).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.1.0"  # the single version source (pyproject.toml reads it; CHANGELOG.md)

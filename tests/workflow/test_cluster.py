@@ -35,6 +35,10 @@ WALL_CLOCK_KEYS = ("seconds",)
 
 pytestmark = pytest.mark.slow
 
+# the executor plugins are the optional extra [slurm] (requirements.lock and .ci/run install it)
+for _plugin in ("snakemake_executor_plugin_slurm", "snakemake_executor_plugin_cluster_generic"):
+    pytest.importorskip(_plugin, reason="the extra [slurm] is not installed: pip install -e '.[slurm]'")
+
 
 def _say(msg: str) -> None:
     print(f"[test_cluster] {msg}", file=sys.stderr, flush=True)

@@ -52,3 +52,14 @@ def estimates_of(wildcards):
 wildcard_constraints:
     dataset="[A-Za-z0-9_.-]+",
     trial="[A-Za-z0-9_-]+",
+
+
+def slac_data_dir():
+    """The SLAC one-sided magnet data for the optional target ri_compare_slac (not bundled: config slac_data_dir)."""
+    d = config.get("slac_data_dir")
+    if not d:
+        raise ValueError(
+            "config: slac_data_dir is not set; ri_compare_slac needs the folder with strdat.ru3/strdat.ru4 "
+            "(e.g. --config slac_data_dir=PATH)"
+        )
+    return d

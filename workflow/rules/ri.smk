@@ -23,7 +23,7 @@ rule ri_compare_slac:
     output:
         RESULTS + "/ri/slac_comparison.md",
     params:
-        data=os.path.join(workflow.basedir, "..", "shared", "data", "external", "slac_quadrupole"),
+        data=lambda w: slac_data_dir(),
     log:
         RESULTS + "/ri/logs/ri_compare_slac.log",
     benchmark:
