@@ -44,7 +44,7 @@ def _collect_parsers(monkeypatch) -> list[argparse.ArgumentParser]:
 
 @pytest.mark.parametrize("argv", [
     ["init", "--help"], ["validate", "--help"], ["simulate", "--help"], ["estimate", "--help"],
-    ["gap", "diagnose", "--help"], ["gap", "benchmark", "--help"],
+    ["export", "--help"], ["gap", "diagnose", "--help"], ["gap", "benchmark", "--help"],
     ["gap", "scenario", "--help"], ["gap", "aggregate", "--help"], ["gap", "calibrate", "--help"],
     ["ri", "compare-slac", "--help"], ["ri", "validate-table", "--help"], ["fit-external", "--help"],
 ])

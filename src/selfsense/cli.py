@@ -24,6 +24,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
             "run the Snakemake pipeline in the current directory (options go to Snakemake)"),
     "estimate": ("selfsense.sensing.cli", "main",
                  "stream a long DAQ log through a fitted model (CSV, Parquet, TDMS, MAT)"),
+    "export": ("selfsense.report.export", "main",
+               "write each trial's results as .mat and .csv with units, V, q, estimates, coefficients, config"),
     "gap": ("selfsense.gap.cli", "main", "sim-to-real gap diagnostic (diagnose, benchmark, calibrate, ...)"),
     "ri": ("selfsense.hysteresis.ri_cli", "main", "RI hysteresis model checks against published data"),
     "fit-external": ("selfsense.hysteresis.external", "main",

@@ -33,6 +33,8 @@ tip_free_displacement_m: 0.0065 # free tip opening of the amplified device at ma
 # Optional (delete what you do not need):
 # adc_range_v: 10.0             # +- full scale of the DAQ inputs [V] (saturation checks)
 # format: auto                  # auto (by file extension) | csv | parquet | tdms | mat
+# drive: {{u_cmd_min_v: -1.0, u_cmd_max_v: 10.5}}  # plausible u_cmd range [V]: widen for a bipolar drive or a
+#                               # logged amplifier output (then amplifier_gain: 1)
 # channel_map:                  # your file's column names and scales -> the canonical channels
 #   columns: {{t: Time_ms, u_cmd: AO0, v_shunt: AI1_mV}}
 #   scale:   {{t: 1.0e-3, v_shunt: 1.0e-3}}    # canonical value = scale * file value
@@ -52,7 +54,9 @@ Dataset '{name}' for selfsense (template written by `selfsense init`).
 1. Edit rig.yaml: every number is an example (the bundled virtual tweezer); replace it by your rig's.
 2. Put one DAQ log per trial here (CSV, Parquet, TDMS or MAT) with the channels, in SI units,
      t [s], u_cmd [V, amplifier input], v_shunt [V, in-amp output], laser [V], load_cell [V], relay [0/1]
-   (other names or scales: rig.yaml channel_map).
+   (other names or scales: rig.yaml channel_map; extra channels are ignored with a note; an oscilloscope
+   CSV with preamble lines before the header is read). A bipolar drive, or u_cmd logged at the amplifier
+   output: rig.yaml drive: {{u_cmd_min_v: ..., u_cmd_max_v: ...}}.
 3. Edit trials.csv: one row per log. Allowed values:
      role       calibration | validation
      tip        free | blocked | object        (object_mm: object size [mm] when tip = object, else empty)

@@ -140,7 +140,9 @@ def main(argv: list[str] | None = None) -> int:
         extra += ["--configfile", str(workdir / "config.yaml")]
     for f in _option_values(argv, ("--configfile", "--configfiles")):
         if not Path(f).is_file():
-            print(f"selfsense run: error: --configfile {f}: no such file (relative paths start at {cwd})",
+            hint = ("; Snakemake reads every word after --configfile as a config file, so put targets first: "
+                    f"selfsense run {f} --configfile ...") if not f.endswith((".yaml", ".yml", ".json")) else ""
+            print(f"selfsense run: error: --configfile {f}: no such file (relative paths start at {cwd}){hint}",
                   file=sys.stderr)
             return 2
     cmd_args = extra + argv

@@ -123,8 +123,7 @@ CASES = [
     # (id, mutation, file, field, row, message fragment)
     ("log-missing-column", mod_log("blocked_sine.csv", lambda df: df.drop(columns="relay")),
      "blocked_sine.csv", "relay", None, "this required column, found 'missing'"),
-    ("log-extra-column", mod_log("free_sine.parquet", lambda df: df.assign(temperature=1.0)),
-     "free_sine.parquet", "temperature", None, "unexpected column"),
+    # an extra channel is ignored with a note (tests/io/test_own_rig.py), not an error
     ("log-misspelt-column", mod_log("free_steps.csv", lambda df: df.rename(columns={"v_shunt": "v_shnt"})),
      "free_steps.csv", "v_shnt", None, "expected column 'v_shunt' (misspelt?)"),
     ("log-misspelt-column-missing-side", mod_log("free_steps.csv", lambda df: df.rename(columns={"v_shunt": "v_shnt"})),
@@ -221,7 +220,7 @@ CASES = [
     ("rig-missing-file", lambda d: (d / "rig.yaml").unlink(), "rig.yaml", None, None, "no such file"),
     ("rig-channel-map-unknown", mod_rig(_set("channel_map", {"columns": {"voltage": "AI0"}})),
      "rig.yaml", "channel_map.columns.voltage", None, "canonical channel name"),
-    ("rig-bad-format", mod_rig(_set("format", "hdf5")), "rig.yaml", "format", None, "'auto', 'csv' or 'parquet'"),
+    ("rig-bad-format", mod_rig(_set("format", "hdf5")), "rig.yaml", "format", None, "'auto', 'csv', 'parquet', 'tdms' or 'mat'"),
     # ---- trials.csv -----------------------------------------------------------------------------
     ("trials-missing-file", mod_trials(lambda r: r[:1] + [[*r[1][:1], "nope.csv", *r[1][2:]]] + r[2:]),
      "trials.csv", "file", 2, "an existing log file, found 'nope.csv (no such file)'"),

@@ -266,3 +266,46 @@ def test_stream_equals_batch_on_bundled_sample(tmp_path):
     for trial in meta.index[:3]:
         raw = sio.read_log(d / meta.loc[trial, "file"])
         _check_equal(stream, est, raw, sigs[trial], blocks=[len(raw) // 3])
+
+
+@pytest.mark.parametrize("fmt", ["csv", "scope_csv", "mat", "tdms"])
+def test_cli_reads_every_log_format(fitted, tmp_path, fmt):
+    """`selfsense estimate` reads the formats the pipeline reads (CSV with extra channels or a scope preamble,
+    MAT, TDMS) and gives the same estimates as from Parquet."""
+    from selfsense.cli import main
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    raw = _raw(d, "obj_val")
+    ref_log = tmp_path / "log.parquet"
+    raw.to_parquet(ref_log, index=False)
+    ref_out = tmp_path / "ref.parquet"
+    assert main(["estimate", "--model", str(model), "--dataset", str(d), "--log", str(ref_log),
+                 "--out", str(ref_out), "--chunk", "400"]) == 0
+    if fmt == "csv":
+        log = tmp_path / "log.csv"
+        raw.assign(aux_channel=1.0).to_csv(log, index=False, float_format="%.17g")
+    elif fmt == "scope_csv":
+        log = tmp_path / "scope.csv"
+        body = raw.to_csv(index=False, float_format="%.17g")
+        log.write_text("Instrument,scope\nDate,today\n" + body)
+    elif fmt == "mat":
+        import scipy.io
+
+        log = tmp_path / "log.mat"
+        scipy.io.savemat(log, {c: raw[c].to_numpy() for c in raw.columns})
+    else:
+        from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+        log = tmp_path / "log.tdms"
+        objs = [RootObject({}), GroupObject("g")] + [ChannelObject("g", c, raw[c].to_numpy()) for c in raw.columns]
+        with TdmsWriter(log) as w:
+            w.write_segment(objs)
+    out = tmp_path / "out.parquet"
+    assert main(["estimate", "--model", str(model), "--dataset", str(d), "--log", str(log), "--out", str(out),
+                 "--chunk", "333"]) == 0
+    got, ref = pd.read_parquet(out), pd.read_parquet(ref_out)
+    assert len(got) == len(raw)
+    for col in ("t", "dx_hat", "f_hat"):
+        _assert_close(got[col].to_numpy(), ref[col].to_numpy(), f"{fmt} {col}")

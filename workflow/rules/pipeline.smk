@@ -203,13 +203,20 @@ rule report:
         "../scripts/report.py"
 
 
-# MATLAB users: `snakemake --cores 2 matlab` writes every trial's estimates as results/<d>/matlab/<trial>.mat
-# (struct `estimates` with t, dx_hat, f_hat, dx_ref, f_ref in SI units, and struct `meta`); not in the default run.
+# MATLAB / spreadsheet users: `selfsense run matlab` (or `snakemake --cores 2 matlab`) writes every trial's results
+# as results/<d>/export/<trial>.mat and .csv (t, u_cmd, relay, V, q, V_H, V_p, raw and post-processed estimates,
+# references, with units, sample rate, coefficients with units and the estimator config; selfsense.report.export);
+# not in the default run. `selfsense export RESULTS_DIR DATASET_DIR --out DIR` does the same outside Snakemake.
 rule export_matlab:
     input:
-        RESULTS + "/{dataset}/estimates/{trial}.parquet",
+        signals=RESULTS + "/{dataset}/signals/{trial}.parquet",
+        internals=RESULTS + "/{dataset}/internals/{trial}.parquet",
+        model=RESULTS + "/{dataset}/model/sensing.json",
     output:
-        RESULTS + "/{dataset}/matlab/{trial}.mat",
+        mat=RESULTS + "/{dataset}/export/{trial}.mat",
+        csv=RESULTS + "/{dataset}/export/{trial}.csv",
+    params:
+        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
     log:
         RESULTS + "/{dataset}/logs/export_matlab/{trial}.log",
     benchmark:
@@ -224,4 +231,4 @@ rule export_matlab:
 
 rule matlab:
     input:
-        lambda w: [f"{RESULTS}/{d}/matlab/{t}.mat" for d in DATASETS for t in all_trials(d)],
+        lambda w: [f"{RESULTS}/{d}/export/{t}.{ext}" for d in DATASETS for t in all_trials(d) for ext in ("mat", "csv")],

@@ -1,8 +1,7 @@
-import pandas as pd
-
 from selfsense import stages
-from selfsense.io.formats import export_estimates_mat
+from selfsense.report.export import export_trial
 
 with stages.logged(snakemake.log[0]):  # noqa: F821
-    export_estimates_mat(pd.read_parquet(snakemake.input[0]), snakemake.output[0],  # noqa: F821
-                         meta={"dataset": snakemake.wildcards.dataset, "trial": snakemake.wildcards.trial})  # noqa: F821
+    export_trial(snakemake.params.dataset_dir, snakemake.wildcards.trial, snakemake.input.signals,  # noqa: F821
+                 snakemake.input.internals, snakemake.input.model,  # noqa: F821
+                 out_mat=snakemake.output.mat, out_csv=snakemake.output.csv)  # noqa: F821

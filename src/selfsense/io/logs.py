@@ -58,24 +58,61 @@ def _probe(path: Path, size: int) -> tuple[bytes, bytes]:
     return head, tail
 
 
-def _csv_header(name: str, path: Path, size: int) -> tuple[list[str] | None, list[Problem]]:
+def _csv_header(name: str, path: Path, size: int, wanted: tuple[str, ...] = ()
+                ) -> tuple[list[str] | None, list[Problem], int, bool]:
+    """``(header, problems, skip, units_row)``: the column names, the number of preamble lines before the header
+    line and whether a units row (no number in any cell) follows it.
+
+    The header is the first line; a scope export that starts with preamble lines (instrument, date, settings...)
+    is accepted when a later line within the first 64 KiB names every wanted column: the lines before it are
+    skipped (docs/data_format.md, "Oscilloscope CSV")."""
     head, tail = _probe(path, size)
     if b"\x00" in head or b"\x00" in tail:
-        return None, [Problem(name, None, None, "a text CSV file", "NUL bytes (binary, sparse or corrupt file)")]
+        return None, [Problem(name, None, None, "a text CSV file", "NUL bytes (binary, sparse or corrupt file)")], 0, False
     nl = head.find(b"\n")
     if nl < 0 and size > len(head):
         return None, [Problem(name, None, None, f"a header line within the first {_PROBE} bytes",
-                              "no line break")]
-    line = head[: nl if nl >= 0 else len(head)]
+                              "no line break")], 0, False
     try:
-        text = line.decode("utf-8-sig").rstrip("\r")
+        text = head.decode("utf-8-sig", errors="strict" if size <= len(head) else "ignore")
     except UnicodeDecodeError:
-        return None, [Problem(name, None, None, "a UTF-8 header line", "undecodable bytes")]
-    header = next(csv.reader([text]), [])
-    header = [h.strip() for h in header]
+        return None, [Problem(name, None, None, "a UTF-8 header line", "undecodable bytes")], 0, False
+    lines = text.split("\n")
+    if size > len(head):
+        lines = lines[:-1]  # the probe may cut the last line
+    rows = [[h.strip() for h in next(csv.reader([ln.rstrip("\r")]), [])] for ln in lines[:200]]
+    if not rows or not any(rows[0]):
+        if not any(any(r) for r in rows):
+            return None, [Problem(name, None, None, "a header line naming the columns", "blank first line")], 0, False
+    skip = 0
+    if wanted and not set(wanted) <= set(rows[0]):
+        for i, r in enumerate(rows[1:], start=1):
+            if set(wanted) <= set(r):
+                skip = i
+                break
+    header = rows[skip]
     if not any(header):
-        return None, [Problem(name, None, None, "a header line naming the columns", "blank first line")]
-    return header, []
+        return None, [Problem(name, None, None, "a header line naming the columns", "blank first line")], 0, False
+    units = False
+    if skip + 1 < len(rows):
+        nxt = [c for c in rows[skip + 1] if c]
+        units = bool(nxt) and len(rows[skip + 1]) == len(header) and not any(_is_number(c) for c in nxt)
+    return header, [], skip, units
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _note(name: str, msg: str) -> None:
+    """A note about a log that is read anyway (extra channels, scope preamble): the rule log / stderr."""
+    import logging
+
+    logging.getLogger("selfsense.io").warning("note: %s: %s", name, msg)
 
 
 def _parquet_header(name: str, path: Path, size: int):
@@ -217,17 +254,21 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
     # --- analog channels: units and saturation ---------------------------------------------------
     u = arr["u_cmd"]
     uf = u[np.isfinite(u)]
+    u_hi = rig.u_cmd_max_v if rig is not None else LIMITS["u_cmd_max_v"]
+    u_lo = rig.u_cmd_min_v if rig is not None else LIMITS["u_cmd_min_v"]
+    default_range = (u_lo, u_hi) == (LIMITS["u_cmd_min_v"], LIMITS["u_cmd_max_v"])
+    why = ("amplifier input 0-10 V; a bipolar drive or a logged amplifier output is declared in rig.yaml drive"
+           if default_range else "rig.yaml drive")
     if uf.size:
         umax, umin = float(uf.max()), float(uf.min())
-        if umax > LIMITS["u_cmd_max_v"]:
-            i = int(np.flatnonzero(u > LIMITS["u_cmd_max_v"])[0])
+        if umax > u_hi:
+            i = int(np.flatnonzero(u > u_hi)[0])
             probs.append(Problem(name, "u_cmd", i + 1,
-                                 f"u_cmd <= {LIMITS['u_cmd_max_v']:g} V (amplifier input 0-10 V; mV logged as V?)",
+                                 f"u_cmd <= {u_hi:g} V ({why}{'; mV logged as V?' if default_range else ''})",
                                  f"max {umax:.6g} V"))
-        elif umin < LIMITS["u_cmd_min_v"]:
-            i = int(np.flatnonzero(u < LIMITS["u_cmd_min_v"])[0])
-            probs.append(Problem(name, "u_cmd", i + 1, f"u_cmd >= {LIMITS['u_cmd_min_v']:g} V "
-                                 "(amplifier input 0-10 V)", f"min {umin:.6g} V"))
+        elif umin < u_lo:
+            i = int(np.flatnonzero(u < u_lo)[0])
+            probs.append(Problem(name, "u_cmd", i + 1, f"u_cmd >= {u_lo:g} V ({why})", f"min {umin:.6g} V"))
         elif max(abs(umax), abs(umin)) < LIMITS["u_cmd_min_peak_v"]:
             probs.append(Problem(name, "u_cmd", None,
                                  f"a drive signal, max |u_cmd| >= {LIMITS['u_cmd_min_peak_v']:g} V "
@@ -311,14 +352,20 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         fcol = {c: c for c in CANONICAL_COLUMNS}
         num_probs: list[Problem] = []
     elif kind == "csv":
-        header, probs = _csv_header(name, path, size)
+        header, probs, skip, units = _csv_header(name, path, size, wanted)
         if probs:
             return None, probs
-        probs = column_problems(name, header, wanted)
+        probs = _column_problems(name, header, wanted)
         if probs:
             return None, probs
-        # the header is exactly the canonical set here, so no usecols; ragged rows are errors, not data
-        opts = dict(engine="c", encoding="utf-8-sig", skipinitialspace=True, index_col=False)
+        if skip:
+            _note(name, f"{skip} preamble line(s) before the header line skipped (oscilloscope export)")
+        if units:
+            _note(name, "units row after the header line skipped")
+        # ragged rows are errors, not data; extra columns are read (and dropped below)
+        opts = dict(engine="c", encoding="utf-8-sig", skipinitialspace=True, index_col=False,
+                    skiprows=list(range(skip)) + ([skip + 1] if units else []) or None,
+                    usecols=list(wanted) if set(header) - set(wanted) else None)
         num_probs: list[Problem] = []
         try:
             with warnings.catch_warnings():
@@ -331,7 +378,7 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
                     raw = pd.read_csv(path, dtype=object, keep_default_na=False, **opts)
                     raw, num_probs = _bad_cells(name, raw, list(wanted))
         except (pd.errors.ParserError, pd.errors.ParserWarning) as e:
-            bad = _first_ragged_row(path, len(header))
+            bad = _first_ragged_row(path, len(header), skip + 1 + int(units))
             if bad is not None:
                 return None, [Problem(name, None, bad[0], f"a well-formed CSV row of {len(header)} cells",
                                       f"{bad[1]} cells")]
@@ -342,7 +389,7 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         pf, names, probs = _parquet_header(name, path, size)
         if probs:
             return None, probs
-        probs = column_problems(name, names, wanted)
+        probs = _column_problems(name, names, wanted)
         if probs:
             return None, probs
         if pf.metadata.num_rows == 0:
@@ -371,11 +418,24 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
     return df, check_signals(df, rig, reference, name)
 
 
-def _first_ragged_row(path: Path, ncols: int) -> tuple[int, int] | None:
+def _column_problems(name: str, found: list[str], wanted: tuple[str, ...]) -> list[Problem]:
+    """Missing / misspelt / duplicated channel columns. Extra columns (other DAQ channels) are ignored with a
+    note when every wanted column is present; if one is missing they are listed, as they may be its misspelling."""
+    probs = column_problems(name, found, wanted)
+    if all(w in found for w in wanted):
+        extra = [c for c in dict.fromkeys(found) if c not in wanted]
+        if extra:
+            _note(name, f"extra column(s) {', '.join(map(repr, extra))} ignored")
+        probs = [p for p in probs if p.field in wanted]  # keep duplicated wanted columns
+    return probs
+
+
+def _first_ragged_row(path: Path, ncols: int, header_lines: int = 1) -> tuple[int, int] | None:
     """(1-based data row, number of cells) of the first CSV row whose cell count differs from the header."""
     with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
         rd = csv.reader(fh)
-        next(rd, None)
+        for _ in range(header_lines):
+            next(rd, None)
         for i, r in enumerate(rd, start=1):
             if r and len(r) != ncols:
                 return i, len(r)

@@ -86,6 +86,10 @@ class Rig:
     format: str = "auto"
     adc_range_v: float = 10.0
     channel_map: ChannelMap | None = None
+    #: plausible range of the logged drive channel ``u_cmd`` [V] (rig.yaml ``drive``); the defaults describe a
+    #: unipolar 0-10 V amplifier input (selfsense.io.logs.LIMITS)
+    u_cmd_min_v: float = -1.0
+    u_cmd_max_v: float = 10.5
 
     @property
     def dt(self) -> float:
@@ -118,7 +122,7 @@ _REQUIRED: dict[str, Any] = {
     },
     "tip_free_displacement_m": (_NUM, 1e-7, 0.1, True),
 }
-_OPTIONAL = {"format", "adc_range_v", "channel_map"}
+_OPTIONAL = {"format", "adc_range_v", "channel_map", "drive"}
 
 
 class _Loader(yaml.SafeLoader):
@@ -252,10 +256,11 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
     vals = _check_mapping("", data, _REQUIRED, _OPTIONAL, probs)
     fmt = data.get("format", "auto")
     if fmt not in FORMATS:
-        probs.append(Problem(RIG_FILE, "format", None, "'auto', 'csv' or 'parquet'", fmt))
+        probs.append(Problem(RIG_FILE, "format", None, "'auto', 'csv', 'parquet', 'tdms' or 'mat'", fmt))
     adc = data.get("adc_range_v", 10.0)
     adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
     cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None
+    u_lo, u_hi = _check_drive(data.get("drive"), probs)
     if dataset_name is not None and isinstance(vals.get("dataset"), str) and vals["dataset"] != dataset_name:
         probs.append(Problem(RIG_FILE, "dataset", None, f"the folder name {dataset_name!r}", vals["dataset"]))
     if probs:
@@ -273,8 +278,38 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
         format=fmt,
         adc_range_v=adc,
         channel_map=cmap,
+        u_cmd_min_v=u_lo,
+        u_cmd_max_v=u_hi,
     )
     return rig, probs
+
+
+def _check_drive(d: Any, probs: list[Problem]) -> tuple[float, float]:
+    """rig.yaml ``drive: {u_cmd_min_v, u_cmd_max_v}``: the plausible range of the logged ``u_cmd`` [V].
+
+    A bipolar drive (``u_cmd_min_v: -10``) or a rig that logs the amplifier *output* in ``u_cmd`` (then
+    ``amplifier_gain: 1`` and e.g. ``u_cmd_max_v: 160``) is described here instead of failing the default
+    0-10 V check."""
+    lo, hi = -1.0, 10.5
+    if d is None:
+        return lo, hi
+    if not isinstance(d, dict):
+        probs.append(Problem(RIG_FILE, "drive", None, "a mapping with 'u_cmd_min_v' and/or 'u_cmd_max_v'", d))
+        return lo, hi
+    for k in d:
+        if k not in ("u_cmd_min_v", "u_cmd_max_v"):
+            probs.append(Problem(RIG_FILE, f"drive.{k}", None, "only 'u_cmd_min_v' and 'u_cmd_max_v'", "unknown key"))
+    vals = {}
+    for k, default in (("u_cmd_min_v", lo), ("u_cmd_max_v", hi)):
+        v = d.get(k, default)
+        if not _is_number(v) or not math.isfinite(float(v)) or abs(float(v)) > 1e4:
+            probs.append(Problem(RIG_FILE, f"drive.{k}", None, "a finite number of volts, |x| <= 10 kV", v))
+            v = default
+        vals[k] = float(v)
+    if vals["u_cmd_min_v"] >= vals["u_cmd_max_v"]:
+        probs.append(Problem(RIG_FILE, "drive", None, "u_cmd_min_v < u_cmd_max_v",
+                             f"{vals['u_cmd_min_v']:g} >= {vals['u_cmd_max_v']:g}"))
+    return vals["u_cmd_min_v"], vals["u_cmd_max_v"]
 
 
 _MAX_RIG_BYTES = 1 << 20

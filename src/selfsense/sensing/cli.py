@@ -1,9 +1,9 @@
-"""``selfsense estimate``: chunked streaming estimation of a long raw DAQ log (Parquet).
+"""``selfsense estimate``: chunked streaming estimation of a long raw DAQ log (Parquet, CSV, TDMS or MAT).
 
     selfsense estimate --model results/<d>/model/sensing.json --dataset data/raw/<d> \\
         --log FILE.parquet --out OUT.parquet [--chunk 1000000] [--full] [--offset relay|VOLTS]
 
-Reads the log in record batches (``pyarrow.parquet.ParquetFile.iter_batches``), feeds them through
+Reads the log in chunks (Parquet record batches, CSV chunks; TDMS and MAT are read whole, then chunked), feeds them through
 :class:`selfsense.sensing.streaming.SelfSensingStream` (all state carried between chunks, so the result equals
 the batch pipeline ``stages.ingest`` -> ``SelfSensingEstimator.estimate`` on the whole log) and writes each chunk
 as a row group of the output (``pyarrow.parquet.ParquetWriter`` into a temp file, ``os.replace`` at the end: a
@@ -30,13 +30,95 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="selfsense estimate", description=__doc__.split("\n\n")[0], allow_abbrev=False)
     p.add_argument("--model", required=True, help="fitted estimator JSON (results/<d>/model/sensing.json)")
     p.add_argument("--dataset", required=True, help="dataset directory holding rig.yaml (data/raw/<d>)")
-    p.add_argument("--log", required=True, help="raw DAQ log (.parquet) with t, u_cmd, v_shunt[, relay]")
+    p.add_argument("--log", required=True, help="raw DAQ log (.parquet, .csv, .tdms or .mat) with t, u_cmd, v_shunt[, relay]")
     p.add_argument("--out", required=True, help="output .parquet")
     p.add_argument("--chunk", type=int, default=1_000_000, help="samples per chunk (default 1000000)")
     p.add_argument("--full", action="store_true", help="also write q, V, V_H, V_p, dx_raw, f_raw")
     p.add_argument("--offset", default="relay",
                    help="in-amp offset of V_s: 'relay' (mean over the first shorted segment, default) or volts")
     return p
+
+
+_NEED = ("t", "u_cmd", "v_shunt")
+
+
+def _log_chunks(log: str | Path, rig, chunk: int):
+    """``(n_samples or None, has_relay, iterator of {channel: float64 array}})`` for a raw log in any format the
+    pipeline reads (selfsense.io): Parquet (record batches) and CSV (pandas chunks; a scope preamble and units row
+    are skipped, extra columns ignored) are read chunk by chunk, memory bounded by ``chunk``; TDMS and MAT are
+    read whole by :func:`selfsense.io.formats.read_tdms` / ``read_mat`` and then fed in chunks. ``rig.yaml:
+    channel_map`` names and scales apply."""
+    import pandas as pd
+
+    from selfsense.io import logs as slogs
+
+    log = Path(log)
+    if not log.is_file():
+        raise FileNotFoundError(2, "No such file or directory", str(log))
+    cmap = getattr(rig, "channel_map", None)
+    fcol = {c: (cmap.file_column(c) if cmap else c) for c in (*_NEED, "relay")}
+    scale = {c: float(cmap.scale[c]) for c in fcol if cmap and c in cmap.scale}
+    kind = slogs._kind(log, rig)
+
+    def scaled(block: dict) -> dict:
+        return {c: (scale[c] * a if c in scale else a) for c, a in block.items()}
+
+    def missing_error(names) -> ValueError:
+        miss = [fcol[c] for c in _NEED if fcol[c] not in names]
+        return ValueError(f"{log}: missing column(s) {miss}; expected t, u_cmd, v_shunt and relay")
+
+    if kind == "parquet":
+        import pyarrow.parquet as pq
+
+        pf = pq.ParquetFile(str(log))
+        names = set(pf.schema_arrow.names)
+        if any(fcol[c] not in names for c in _NEED):
+            raise missing_error(names)
+        use = [c for c in fcol if fcol[c] in names]
+
+        def it():
+            for b in pf.iter_batches(batch_size=chunk, columns=[fcol[c] for c in use]):
+                yield scaled({c: b.column(fcol[c]).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
+                              for c in use})
+        return pf.metadata.num_rows, "relay" in use, it()
+    if kind == "csv":
+        header, probs, skip, units = slogs._csv_header(log.name, log, log.stat().st_size,
+                                                       tuple(fcol[c] for c in _NEED))
+        if probs:
+            raise ValueError(str(probs[0]))
+        if any(fcol[c] not in header for c in _NEED):
+            raise missing_error(header)
+        use = [c for c in fcol if fcol[c] in header]
+        reader = pd.read_csv(log, usecols=[fcol[c] for c in use], dtype="float64", chunksize=chunk,
+                             skiprows=list(range(skip)) + ([skip + 1] if units else []) or None,
+                             encoding="utf-8-sig", skipinitialspace=True)
+
+        def it():
+            with reader:
+                for df in reader:
+                    yield scaled({c: df[fcol[c]].to_numpy(np.float64) for c in use})
+        with open(log, "rb") as fh:  # row count estimate for the progress bar (bytes per line of the first 64 KiB)
+            head = fh.read(1 << 16)
+        n_est = int(log.stat().st_size / max(len(head) / max(head.count(b"\n"), 1), 1.0))
+        return n_est, "relay" in use, it()
+    if kind in ("tdms", "mat"):
+        from selfsense.io.formats import read_mat, read_tdms
+
+        cols = dict(cmap.columns) if cmap else None
+        grp = cmap.group if cmap else None
+        if kind == "tdms":
+            df = read_tdms(log, cols, group=grp)
+        else:
+            dt = None if cols and "t" in cols else rig.dt
+            df = read_mat(log, cols, group=grp, dt=dt)
+        arrays = scaled({c: df[c].to_numpy(np.float64) for c in (*_NEED, "relay")})
+
+        def it():
+            for i in range(0, len(df), chunk):
+                yield {c: a[i:i + chunk] for c, a in arrays.items()}
+        return len(df), True, it()
+    raise ValueError(f"{log}: expected a .parquet, .csv, .tdms or .mat log (or rig.yaml format), found "
+                     f"{log.suffix or 'no suffix'!r}")
 
 
 def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: str | Path,
@@ -54,39 +136,22 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
         raise ValueError(f"--chunk must be >= 1, got {chunk}")
     rig = sio.load_rig(dataset)
     stream = SelfSensingStream.from_json(model, rig, offset=offset)
-    cmap = getattr(rig, "channel_map", None)
-    fcol = {c: (cmap.file_column(c) if cmap else c) for c in ("t", "u_cmd", "v_shunt", "relay")}
-    scale = {c: float(cmap.scale[c]) for c in fcol if cmap and c in cmap.scale}
-
-    pf = pq.ParquetFile(str(log))
-    names = set(pf.schema_arrow.names)
-    need = [fcol[c] for c in ("t", "u_cmd", "v_shunt")]
-    missing = [c for c in need if c not in names]
-    if missing:
-        raise ValueError(f"{log}: missing column(s) {missing}; expected t, u_cmd, v_shunt and relay")
-    has_relay = fcol["relay"] in names
+    n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
     if not has_relay and offset == "relay":
         raise ValueError(f"{log}: no relay column, so the in-amp offset cannot be estimated; pass --offset VOLTS")
-    cols = need + ([fcol["relay"]] if has_relay else [])
 
     out_cols = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
     schema = pa.schema([(c, pa.float64()) for c in out_cols])
-    n_total = pf.metadata.num_rows
     done = 0
-
-    def col(batch, name):
-        a = batch.column(fcol[name]).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
-        return scale[name] * a if name in scale else a
 
     with sio.atomic_write(out, "wb") as fh:
         writer = pq.ParquetWriter(fh, schema, compression="zstd")
         try:
             with tqdm(total=n_total, unit="sample", unit_scale=True, disable=None if progress is None else not progress,
                       desc="estimate", file=sys.stderr) as bar:
-                for batch in pf.iter_batches(batch_size=chunk, columns=cols):
-                    t = col(batch, "t")
-                    relay = col(batch, "relay") if has_relay else None
-                    res = stream.process(col(batch, "u_cmd"), col(batch, "v_shunt"), relay, t=t, full=full)
+                for block in chunks:
+                    t = block["t"]
+                    res = stream.process(block["u_cmd"], block["v_shunt"], block.get("relay"), t=t, full=full)
                     if full:
                         arrays = [t, res["dx_hat"], res["f_hat"]] + [res[c] for c in _AUX]
                     else:
