@@ -13,6 +13,10 @@ min_version("8.10")
 configfile: os.path.join(workflow.basedir, "config.yaml")
 
 
+# before the schema: YAML aliases, results_dir apart from raw_dir (symlinks resolved), solver installed
+from selfsense.io.config import check_config
+
+check_config(config, workflow.configfiles)
 validate(config, "workflow/schemas/config.schema.yaml")
 
 

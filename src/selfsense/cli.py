@@ -97,8 +97,19 @@ def main(argv: list[str] | None = None) -> int:
         problems = getattr(exc, "problems", None)
         lines = [" ".join(str(p).split()) for p in problems] if problems else [_one_line(exc)]
         for line in lines:  # a contract error: one line per problem
-            print(f"selfsense {cmd}: error: {line}", file=sys.stderr)
+            print(f"selfsense {cmd}: error: {_cap(line)}", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - a bug, not bad input: still one line, exit 1 (issue 16)
+        if os.environ.get("SELFSENSE_TRACEBACK"):
+            raise
+        print(f"selfsense {cmd}: internal error ({type(exc).__name__}; SELFSENSE_TRACEBACK=1 shows the traceback): "
+              f"{_cap(_one_line(exc))}", file=sys.stderr)
+        return 1
+
+
+def _cap(line: str, limit: int = 400) -> str:
+    """A message line cut to ``limit`` characters (a 1 MB value never floods the terminal)."""
+    return line if len(line) <= limit else line[:limit] + f"... ({len(line) - limit} more characters)"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -160,7 +160,23 @@ def main(argv: list[str] | None = None) -> int:
               f"{workdir}); create one with 'selfsense init' or 'selfsense simulate', or set --config "
               f"raw_dir=... datasets=[...]", file=sys.stderr)
         return 2
-    rc = subprocess.call([sys.executable, "-m", "snakemake", *cmd_args], cwd=cwd)
+    from selfsense.io.config import ConfigError, check_config
+    from selfsense.io.outputs import OutputError, output_lock
+
+    try:  # before Snakemake parses anything: YAML aliases, results_dir apart from raw_dir, solver installed
+        check_config(cfg, _option_values(cmd_args, ("--configfile", "--configfiles")), workdir=workdir)
+    except ConfigError as exc:
+        print(f"selfsense run: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        # one `selfsense run` per directory: a second one would see the first one's outputs as "incomplete" and
+        # Snakemake would advise --rerun-incomplete, which is wrong while the first run is alive
+        with output_lock(workdir / ".snakemake" / "selfsense-run", what="selfsense run in"):
+            rc = subprocess.call([sys.executable, "-m", "snakemake", *cmd_args], cwd=cwd)
+    except OutputError:
+        print(f"selfsense run: error: another selfsense run is working in {workdir}; wait for it to finish "
+              "(do not use --rerun-incomplete or --unlock while it runs)", file=sys.stderr)
+        return 2
     if rc != 0:
         return rc
     if any(a in ("-n", "--dry-run", "--dryrun") for a in argv):

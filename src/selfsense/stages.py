@@ -45,7 +45,7 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
     """
     if on_bad_trial not in ("fail", "skip"):
         raise ValueError(f"on_bad_trial: expected 'fail' or 'skip', found {on_bad_trial!r}")
-    problems = sio.validate_dataset(dataset_dir)
+    problems, warnings = sio.check_dataset(dataset_dir, pipeline=True)
     try:
         meta = _meta(dataset_dir)
     except sio.ContractError:
@@ -63,7 +63,10 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
         raise sio.ContractError(problems)
     valid = sorted(t for t in meta.index if t not in per_trial)
     summary = {"dataset": Path(dataset_dir).name, "valid": not per_trial, "n_trials": int(len(meta)),
-               "trials": valid, "failed": {t: per_trial[t] for t in sorted(per_trial)}}
+               "trials": valid, "failed": {t: per_trial[t] for t in sorted(per_trial)},
+               "warnings": [str(w) for w in warnings]}
+    for w in warnings:
+        print(f"warning: {w}")
     for t, msgs in summary["failed"].items():
         print(f"trial {t!r} failed validation and is left out (on_bad_trial=skip):", *msgs, sep="\n  ")
     sio.write_json_atomic(summary, out_json)

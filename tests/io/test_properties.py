@@ -24,7 +24,8 @@ def valid_params(draw):
     fs = draw(st.sampled_from([200.0, 1000.0, 2500.0]))
     freq = draw(st.floats(0.5, 1.5))
     n_relay = draw(st.integers(2, 100))
-    n = n_relay + int(fs / (2 * freq)) + draw(st.integers(10, 300))
+    # at least half a drive period connected, and connected for most of the trial (plausibility: relay)
+    n = n_relay + max(int(fs / (2 * freq)), n_relay) + draw(st.integers(10, 300))
     return dict(fs=fs, freq_hz=freq, n=n, n_relay=n_relay, amp_v=draw(st.floats(0.5, 8.0)),
                 noise_v=draw(st.sampled_from([0.0, 1e-4, 3e-3])), seed=draw(st.integers(0, 2**16)),
                 fmt=draw(st.sampled_from(["csv", "parquet"])))

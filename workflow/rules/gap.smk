@@ -15,6 +15,8 @@ def gap_raw_inputs(wildcards):
     d = os.path.join(RAW, wildcards.dataset)
     files = [os.path.join(d, "rig.yaml"), os.path.join(d, "trials.csv")]
     files += [os.path.join(d, str(f)) for f in trials_table(wildcards.dataset)["file"]]
+    # after validation: a dataset that fails the contract or the plausibility checks stops there, not here
+    files.append(f"{RESULTS}/{wildcards.dataset}/validation.json")
     return files
 
 

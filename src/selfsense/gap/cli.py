@@ -23,8 +23,10 @@ def _diagnose(a) -> int:
     from .api import run_diagnose
 
     d = run_diagnose(a.dataset_dir, a.out, estimator=a.estimator, seed=a.seed, n_boot=a.n_boot,
-                     figures=not a.no_figures, progress=None)
+                     figures=not a.no_figures, progress=None, force=a.force)
     v = d.verdict
+    if v.get("estimator_fallback"):
+        print(f"gap diagnose: note: estimator {v['estimator_fallback']}", file=sys.stderr)
     print(f"gap diagnose {a.dataset_dir}: effects={v['effects']} unexplained={v['unexplained']} "
           f"error {v['score_before']:.2f} -> {v['score_after_all']:.2f} % of range; wrote {a.out}")
     return 0
@@ -72,7 +74,9 @@ def _calibrate(a) -> int:
            "calibration": {"n_null": a.n, "seed": a.seed, "tier": a.tier, "quantile": thr["_q"],
                            "command": f"selfsense gap calibrate --n {a.n} --seed {a.seed} --tier {a.tier} --sim {a.sim} "
                                       f"--estimator {a.estimator} --out {a.out}"}}
-    Path(a.out).write_text(json.dumps(doc, indent=1) + "\n")
+    from selfsense.io import atomic_write_text
+
+    atomic_write_text(a.out, json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc, indent=1))
     return 0
 
@@ -95,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
     d.add_argument("--n-boot", type=int, default=30, help="bootstrap resamples per candidate effect (default 30)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")
+    d.add_argument("--force", action="store_true",
+                   help="replace --out even if it is a non-empty folder selfsense did not create")
     d.set_defaults(fn=_diagnose)
     b = sub.add_parser("benchmark", help="blind benchmark on simulated scenarios", description="blind benchmark on simulated scenarios", allow_abbrev=False)
     b.add_argument("--n", type=int, required=True, help="number of blind scenarios")

@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from selfsense.io import savefig_atomic
+
 from .diagnose import Diagnosis
 
 __all__ = ["write_diagnosis", "ATTRIBUTION_COLUMNS"]
@@ -114,7 +116,7 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
                 ax.legend(fontsize=7)
             fig.tight_layout()
             p = out / "budget_regimes.png"
-            fig.savefig(p, dpi=110)
+            savefig_atomic(fig, p, dpi=110)
             plt.close(fig)
             paths["fig_budget"] = p
     # 2. shrink
@@ -133,7 +135,7 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
         ax.legend()
         fig.tight_layout()
         p = out / "shrink.png"
-        fig.savefig(p, dpi=110)
+        savefig_atomic(fig, p, dpi=110)
         plt.close(fig)
         paths["fig_shrink"] = p
     # 3. residual vs V by branch (validation trials, base model)
@@ -162,7 +164,7 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
             ax.legend(markerscale=4)
         fig.tight_layout()
         p = out / "residual_vs_voltage.png"
-        fig.savefig(p, dpi=110)
+        savefig_atomic(fig, p, dpi=110)
         plt.close(fig)
         paths["fig_residual"] = p
     return paths

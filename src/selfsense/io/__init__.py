@@ -4,8 +4,9 @@ Knows no physics beyond the unit conversions of DATA_FORMAT.md. See docs/data_fo
 """
 from .atomic import (RawDataWriteError, assert_not_in_raw, atomic_write, atomic_write_bytes, atomic_write_text,
                      dumps_json, parquet_bytes, write_bytes_atomic, write_json_atomic, write_parquet_atomic,
-                     write_text_atomic)
-from .dataset import SI_COLUMNS, Dataset, load_dataset, to_si, trial_signals, validate_dataset
+                     savefig_atomic, write_text_atomic)
+from .outputs import MARKER, OutputError, check_output_dir, check_output_file, output_dir, output_lock
+from .dataset import SI_COLUMNS, Dataset, check_dataset, load_dataset, to_si, trial_signals, validate_dataset
 from .errors import ContractError, Problem
 from .logs import check_log, check_signals, read_log
 from .rig import CANONICAL_COLUMNS, ActuatorCatalog, ChannelMap, Reference, Rig, check_rig, load_rig, parse_rig
@@ -16,5 +17,5 @@ __all__ = [
     "check_rig", "load_trials", "check_trials", "read_log", "check_log", "check_signals", "validate_dataset",
     "load_dataset", "Dataset", "trial_signals", "to_si", "SI_COLUMNS", "CANONICAL_COLUMNS", "TRIAL_COLUMNS",
     "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_parquet_atomic", "write_json_atomic",
-    "dumps_json", "write_text_atomic", "write_bytes_atomic", "parquet_bytes", "assert_not_in_raw", "RawDataWriteError",
+    "check_dataset", "dumps_json", "write_text_atomic", "write_bytes_atomic", "parquet_bytes", "assert_not_in_raw", "RawDataWriteError",
 ]

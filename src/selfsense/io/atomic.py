@@ -14,20 +14,25 @@ import tempfile
 from pathlib import Path
 from typing import IO, Any, Iterator
 
+from .outputs import file_mode
+
 import numpy as np
 import pandas as pd
 
 __all__ = ["RawDataWriteError", "assert_not_in_raw", "atomic_write", "atomic_write_bytes", "atomic_write_text",
            "write_parquet_atomic", "write_json_atomic", "dumps_json", "write_text_atomic", "write_bytes_atomic",
-           "parquet_bytes"]
+           "parquet_bytes", "savefig_atomic"]
 
 
 class RawDataWriteError(PermissionError):
-    """Refusal to write inside ``data/raw`` (raw datasets are read-only for the pipeline)."""
+    """Refusal to write inside ``data/raw`` or any raw dataset folder (raw datasets are read-only)."""
 
 
 def assert_not_in_raw(path: str | os.PathLike) -> Path:
-    """Raise :class:`RawDataWriteError` if ``path`` (resolved, symlinks followed) lies under any ``data/raw``."""
+    """Raise :class:`RawDataWriteError` if ``path`` (resolved, symlinks followed) lies under any ``data/raw``, or
+    inside any folder holding ``rig.yaml`` and ``trials.csv`` (a raw dataset, whatever its name)."""
+    from .outputs import inside_dataset
+
     p = Path(path).expanduser()
     resolved = p.resolve()
     for cand in (p.absolute(), resolved):
@@ -35,6 +40,9 @@ def assert_not_in_raw(path: str | os.PathLike) -> Path:
         for i in range(len(parts) - 1):
             if parts[i] == "data" and parts[i + 1] == "raw":
                 raise RawDataWriteError(f"refusing to write {p}: raw datasets under data/raw are read-only")
+    ds = inside_dataset(resolved)
+    if ds is not None:
+        raise RawDataWriteError(f"refusing to write {p}: it lies inside the raw dataset {ds} (rig.yaml, trials.csv)")
     return p
 
 
@@ -46,6 +54,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb", encoding: str | None
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; artefacts are 0666 minus the umask (0644 usually)
         with os.fdopen(fd, mode, encoding=encoding, **({"newline": ""} if "b" not in mode else {})) as fh:
             yield fh
             fh.flush()
@@ -136,3 +145,13 @@ def dumps_json(obj: Any) -> str:
 def write_json_atomic(obj: Any, path: str | os.PathLike) -> Path:
     """Write ``obj`` as deterministic JSON (see :func:`dumps_json`), atomically."""
     return atomic_write_text(path, dumps_json(obj))
+
+
+def savefig_atomic(fig, path: str | os.PathLike, **kw) -> Path:
+    """``fig.savefig`` into a temp file beside ``path``, then an atomic rename (format from the suffix unless
+    ``format=`` is given): a concurrent reader or a crash never sees a half-written figure."""
+    path = Path(path)
+    kw.setdefault("format", path.suffix.lstrip(".").lower() or "png")
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, **kw)
+    return path

@@ -1,7 +1,8 @@
 """``selfsense validate DATASET_DIR``: check a raw dataset against the contract (DATA_FORMAT.md).
 
 Exit 0 and one OK line for a valid dataset; otherwise exit 1 and one line per problem (on stdout).
-Exit 2 for a usage error.
+Physical plausibility warnings (``selfsense.io.plausibility``) are printed as ``warning: ...`` lines and do not
+change the exit code. Exit 2 for a usage error.
 """
 from __future__ import annotations
 
@@ -19,7 +20,10 @@ def main(argv: list[str] | None = None) -> int:
     rc = 0
     for dd in args.dataset_dir:
         d = Path(dd)
-        rig, trials, probs, n_samples = _dataset_problems(d)
+        warns: list = []
+        rig, trials, probs, n_samples = _dataset_problems(d, warns, pipeline=True)
+        for w in warns:
+            print(f"warning: {d}/{w}")
         if probs:
             rc = 1
             for p in probs:

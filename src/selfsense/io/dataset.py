@@ -3,16 +3,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
 
 from .errors import ContractError, Problem
 from .logs import check_log
+from .plausibility import check_plausibility
 from .rig import Rig, check_rig
-from .trials import check_trials
+from .trials import check_trials, pipeline_problems
 
-__all__ = ["Dataset", "validate_dataset", "load_dataset", "trial_signals", "to_si", "SI_COLUMNS"]
+__all__ = ["Dataset", "check_dataset", "validate_dataset", "load_dataset", "trial_signals", "to_si", "SI_COLUMNS"]
 
 #: columns of :func:`trial_signals`
 SI_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "V_c", "V_s", "relay", "dx_ref", "f_ref")
@@ -29,20 +31,49 @@ class Dataset:
         return self.rig.dataset
 
 
-def _dataset_problems(dataset_dir: Path) -> tuple[Rig | None, pd.DataFrame | None, list[Problem], int]:
+def _log_problems(dataset_dir: Path, rig: Rig | None, rec: Mapping[str, Any]) -> tuple[pd.DataFrame | None,
+                                                                                       list[Problem]]:
+    """Contract checks of one trial log, then (when it passed them and the rig is valid) the physical
+    plausibility checks of :mod:`selfsense.io.plausibility` (errors and warnings)."""
+    df, lp = check_log(dataset_dir / rec["file"], rig, rec["reference"], name=rec["file"])
+    if df is not None and not lp and rig is not None:
+        lp = check_plausibility(df, rig, rec, rec["file"])
+    return df, lp
+
+
+def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, pipeline: bool = False
+                      ) -> tuple[Rig | None, pd.DataFrame | None, list[Problem], int]:
+    """(rig, trials, errors, number of samples); warnings are appended to ``warnings`` when given; with
+    ``pipeline`` also what the pipeline needs beyond the contract (:func:`selfsense.io.trials.pipeline_problems`)."""
     if not dataset_dir.is_dir():
         return None, None, [Problem(str(dataset_dir), None, None, "a dataset folder", "no such directory")], 0
     rig, probs = check_rig(dataset_dir)
     trials, tprobs = check_trials(dataset_dir)
     probs = probs + tprobs
+    if pipeline and trials is not None:
+        probs += pipeline_problems(trials)
     n_samples = 0
     if trials is not None:
-        for rec in trials.itertuples(index=False):
-            df, lp = check_log(dataset_dir / rec.file, rig, rec.reference, name=rec.file)
-            probs += lp
+        for rec in trials.to_dict("records"):
+            df, lp = _log_problems(dataset_dir, rig, rec)
+            probs += [p for p in lp if not p.is_warning]
+            if warnings is not None:
+                warnings += [p for p in lp if p.is_warning]
             if df is not None:
                 n_samples += len(df)
     return rig, trials, probs, n_samples
+
+
+def check_dataset(dataset_dir: str | Path, pipeline: bool = False) -> tuple[list[Problem], list[Problem]]:
+    """``(errors, warnings)`` of a dataset folder: contract problems and physical plausibility findings (and with
+    ``pipeline`` what the pipeline needs: :func:`selfsense.io.trials.pipeline_problems`).
+
+    Warnings do not make a dataset invalid; ``selfsense validate`` prints them and the pipeline writes them to
+    ``validation.json``, which the report shows.
+    """
+    warnings: list[Problem] = []
+    errors = _dataset_problems(Path(dataset_dir), warnings, pipeline)[2]
+    return errors, warnings
 
 
 def validate_dataset(dataset_dir: str | Path) -> list[Problem]:
@@ -105,9 +136,10 @@ def trial_signals(dataset_dir: str | Path, trial: str, rig: Rig | None = None) -
     if sel.empty:
         raise ContractError([Problem("trials.csv", "trial", None, "a trial id listed in trials.csv", trial)], str(d))
     rec = sel.iloc[0]
-    df, lp = check_log(d / rec["file"], rig, rec["reference"], name=rec["file"])
-    if lp or df is None:
-        raise ContractError(lp, str(d))
+    df, lp = _log_problems(d, rig, rec.to_dict())
+    errs = [p for p in lp if not p.is_warning]
+    if errs or df is None:
+        raise ContractError(errs, str(d))
     out = to_si(df, rig, rec["reference"])
     out.attrs.update({"dataset": rig.dataset, "trial": trial, "reference": rec["reference"],
                       "tip": rec["tip"], "role": rec["role"]})

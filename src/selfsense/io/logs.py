@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -149,7 +150,11 @@ def _bad_cells(name: str, raw: pd.DataFrame, cols: list[str]) -> tuple[pd.DataFr
             i = int(np.flatnonzero(bad)[0])
             n = int(bad.sum())
             more = f" ({n} non-numeric cells, first shown)" if n > 1 else ""
-            probs.append(Problem(name, c, i + 1, "a number" + more, str(txt.iloc[i])))
+            cell = str(txt.iloc[i])
+            hint = ""
+            if re.fullmatch(r"\s*[-+]?\d+,\d+([eE][-+]?\d+)?\s*", cell):
+                hint = " with a decimal point (the file uses a decimal comma: export it with '.' as the decimal mark)"
+            probs.append(Problem(name, c, i + 1, "a number" + hint + more, cell))
         out[c] = num.astype("float64")
     return pd.DataFrame(out), probs
 
@@ -357,7 +362,7 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
             return None, probs
         probs = _column_problems(name, header, wanted)
         if probs:
-            return None, probs
+            return None, _separator_hint(name, header, wanted) or probs
         if skip:
             _note(name, f"{skip} preamble line(s) before the header line skipped (oscilloscope export)")
         if units:
@@ -428,6 +433,19 @@ def _column_problems(name: str, found: list[str], wanted: tuple[str, ...]) -> li
             _note(name, f"extra column(s) {', '.join(map(repr, extra))} ignored")
         probs = [p for p in probs if p.field in wanted]  # keep duplicated wanted columns
     return probs
+
+
+def _separator_hint(name: str, header: list[str], wanted: tuple[str, ...]) -> list[Problem] | None:
+    """One clear problem instead of one per column when the file is a semicolon/tab-separated CSV
+    (European spreadsheet exports, often with decimal commas)."""
+    line = ",".join(header)
+    for sep, label in ((";", "semicolon"), ("\t", "tab")):
+        cols = [c.strip() for c in line.split(sep)]
+        if len(cols) > 1 and set(wanted) <= set(cols):
+            return [Problem(name, None, None, "a comma-separated CSV with decimal points (the header must read "
+                            + ",".join(wanted) + ")", f"a {label}-separated file; export it again with ',' as the "
+                            "separator and '.' as the decimal mark")]
+    return None
 
 
 def _first_ragged_row(path: Path, ncols: int, header_lines: int = 1) -> tuple[int, int] | None:

@@ -20,11 +20,13 @@ Optional keys (for DAQ logs that are not in the canonical layout, see docs/data_
     channel_map:
       columns: {t: Time_ms, v_shunt: AI1}   # canonical name -> the file's column name
       scale:   {t: 1.0e-3}                  # canonical = scale * file column (e.g. ms -> s, mV -> V)
+    plausibility: {charge_ratio_max: 8.0}   # physical plausibility limits (selfsense.io.plausibility.DEFAULTS)
+
+YAML aliases (``*name``) are refused (:mod:`selfsense.io.yamlsafe`).
 """
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +34,7 @@ from typing import Any
 import yaml
 
 from .errors import ContractError, Problem
+from .yamlsafe import NoAliasLoader
 
 __all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "parse_rig",
            "CANONICAL_COLUMNS", "RIG_FILE"]
@@ -90,6 +93,15 @@ class Rig:
     #: unipolar 0-10 V amplifier input (selfsense.io.logs.LIMITS)
     u_cmd_min_v: float = -1.0
     u_cmd_max_v: float = 10.5
+    #: plausibility limits overriding :data:`selfsense.io.plausibility.DEFAULTS` (rig.yaml ``plausibility:``)
+    plausibility: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def plausibility_limits(self) -> dict[str, float]:
+        """All plausibility limits: the defaults updated with rig.yaml ``plausibility:``."""
+        from .plausibility import DEFAULTS
+
+        return {**DEFAULTS, **dict(self.plausibility)}
 
     @property
     def dt(self) -> float:
@@ -122,22 +134,10 @@ _REQUIRED: dict[str, Any] = {
     },
     "tip_free_displacement_m": (_NUM, 1e-7, 0.1, True),
 }
-_OPTIONAL = {"format", "adc_range_v", "channel_map", "drive"}
+_OPTIONAL = {"format", "adc_range_v", "channel_map", "drive", "plausibility"}
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-3`` (no dot) as a float, as YAML 1.2 does."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-    |\.[0-9_]+(?:[eE][-+][0-9]+)?
-    |[-+]?\.(?:inf|Inf|INF)
-    |\.(?:nan|NaN|NAN))$""", re.X),
-    list("-+0123456789."),
-)
+_Loader = NoAliasLoader  # aliases refused (a YAML alias bomb under a known key cannot expand)
 
 
 def _is_number(v: Any) -> bool:
@@ -261,6 +261,10 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
     adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
     cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None
     u_lo, u_hi = _check_drive(data.get("drive"), probs)
+    from .plausibility import DEFAULTS as _PD, check_plausibility_keys
+
+    plaus, pprobs = check_plausibility_keys(data.get("plausibility"), RIG_FILE)
+    probs += pprobs
     if dataset_name is not None and isinstance(vals.get("dataset"), str) and vals["dataset"] != dataset_name:
         probs.append(Problem(RIG_FILE, "dataset", None, f"the folder name {dataset_name!r}", vals["dataset"]))
     if probs:
@@ -280,6 +284,7 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
         channel_map=cmap,
         u_cmd_min_v=u_lo,
         u_cmd_max_v=u_hi,
+        plausibility=tuple(sorted((k, v) for k, v in plaus.items() if v != _PD[k])),
     )
     return rig, probs
 
@@ -332,6 +337,8 @@ def check_rig(dataset_dir: str | Path) -> tuple[Rig | None, list[Problem]]:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "unknown position"
+        if "aliases" in str(getattr(e, "problem", "")):
+            return None, [Problem(RIG_FILE, None, None, "no YAML aliases (*name)", f"an alias at {where}")]
         return None, [Problem(RIG_FILE, None, None, "valid YAML", f"syntax error at {where}")]
     return parse_rig(data, d.resolve().name)
 

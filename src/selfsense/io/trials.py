@@ -15,7 +15,7 @@ import pandas as pd
 
 from .errors import ContractError, Problem
 
-__all__ = ["TRIAL_COLUMNS", "ALLOWED", "check_trials", "load_trials", "TRIALS_FILE", "LOG_SUFFIXES"]
+__all__ = ["TRIAL_COLUMNS", "ALLOWED", "check_trials", "load_trials", "pipeline_problems", "TRIALS_FILE", "LOG_SUFFIXES"]
 
 TRIALS_FILE = "trials.csv"
 TRIAL_COLUMNS: tuple[str, ...] = ("trial", "file", "role", "tip", "object_mm", "reference", "signal")
@@ -163,3 +163,25 @@ def load_trials(dataset_dir: str | Path) -> pd.DataFrame:
     if probs or df is None:
         raise ContractError(probs, str(dataset_dir))
     return df
+
+
+def pipeline_problems(trials: pd.DataFrame) -> list[Problem]:
+    """What the pipeline needs beyond the contract (``selfsense validate`` and the ``validate_dataset`` rule
+    check it, so a dataset never passes validation to fail later in a fit):
+
+    * a calibration trial with reference ``displacement`` and one with reference ``force``: the A-coefficient
+      regression (thesis ``000_18d138f03f1777c3.txt`` eq. (52)) needs both (thesis: free tip + laser, blocked
+      tip + load cell);
+    * at least one validation trial: Table 3 averages the validation trials.
+    """
+    F = TRIALS_FILE
+    probs: list[Problem] = []
+    cal = trials[trials["role"] == "calibration"]
+    for ref, why in (("displacement", "free tip + laser"), ("force", "blocked tip + load cell")):
+        if not (cal["reference"] == ref).any():
+            probs.append(Problem(F, "reference", None,
+                                 f"at least one calibration trial with reference {ref!r} (the A-coefficient "
+                                 f"regression of thesis eq. 52 needs both; typically {why})", "none"))
+    if not (trials["role"] == "validation").any():
+        probs.append(Problem(F, "role", None, "at least one 'validation' trial (Table 3 averages them)", "none"))
+    return probs

@@ -5,7 +5,6 @@ Figure numbers refer to ``000_18d138f03f1777c3.txt`` (thesis, "Fig.") and ``001_
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Mapping
 
@@ -15,6 +14,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+
+from selfsense.io import savefig_atomic  # noqa: E402
 
 STYLE = {
     "figure.dpi": 100,
@@ -44,9 +45,7 @@ def _save(fig, out_dir: Path, stem: str) -> list[str]:
     paths = []
     for ext, kw in (("png", {"metadata": {"Software": None}}), ("pdf", {"metadata": {"CreationDate": None, "Producer": None, "Creator": None}})):
         p = out_dir / f"{stem}.{ext}"
-        tmp = p.with_name(f".{p.name}.tmp")
-        fig.savefig(tmp, format=ext, **kw)
-        os.replace(tmp, p)
+        savefig_atomic(fig, p, format=ext, **kw)  # unique temp file, 0644 (umask), atomic rename
         paths.append(str(p))
     plt.close(fig)
     return paths

@@ -50,9 +50,15 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str
         "validation trials.</p>",
     ]
     vpath = results_dir / "validation.json"
+    warnings: list[str] = []
     if vpath.exists():
-        for trial, msgs in json.loads(vpath.read_text()).get("failed", {}).items():
+        vdoc = json.loads(vpath.read_text())
+        for trial, msgs in vdoc.get("failed", {}).items():
             failed = list(failed) + [f"{trial}: " + "; ".join(msgs)]
+        warnings = list(vdoc.get("warnings", []))
+    if warnings:  # physical plausibility warnings of selfsense.io.plausibility (docs/data_format.md)
+        parts.append("<h2>Data warnings</h2><p>Plausibility checks of the raw data that did not stop the run:</p><ul>"
+                     + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>")
     if failed:
         parts.append("<h2>Failed trials</h2><p>Left out of every table and figure:</p><ul>"
                      + "".join(f"<li>{html.escape(f)}</li>" for f in failed) + "</ul>")

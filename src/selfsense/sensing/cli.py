@@ -134,6 +134,8 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
 
     if chunk < 1:
         raise ValueError(f"--chunk must be >= 1, got {chunk}")
+    # --out must not resolve to (or lie in) an input or a raw dataset, whatever the folder names
+    sio.check_output_file(out, [model, dataset, log])
     rig = sio.load_rig(dataset)
     stream = SelfSensingStream.from_json(model, rig, offset=offset)
     n_total, has_relay, chunks = _log_chunks(log, rig, chunk)

@@ -1,0 +1,526 @@
+"""Fault and bad-input catalogue, part 2 (issue 16): data loss, silently wrong numbers, messages.
+
+Each case asserts its specific outcome: the input data is untouched (0 data loss), the wrong data is refused or
+flagged by name (0 silently wrong results), and the command ends with one clear line and exit 2, never a
+traceback (0 tracebacks). Cases call the validation functions or the CLI in-process (no pipeline run), so the
+whole file runs in seconds. Part 1 (malformed files) is ``test_catalogue.py``; :func:`test_catalogue_total`
+counts both.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from selfsense.io import ContractError, check_dataset, load_dataset
+from selfsense.io.outputs import MARKER, OutputError, check_output_dir, output_dir
+
+from io_factory import read_any, write_log
+from test_catalogue import ANY, CASES as PART1, match, mod_log, mod_rig, mod_trials
+
+RNG = np.random.default_rng(16)
+
+
+def _tree_hash(d: Path) -> dict[str, str]:
+    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+# ---- plausibility: data that reads fine but would give wrong numbers -----------------------------------
+def _late_release(df):
+    df = df.copy()
+    k = int(0.7 * len(df))
+    df.loc[:k, "relay"], df.loc[k + 1:, "relay"] = 1.0, 0.0
+    return df
+
+
+def _reshort(frac):
+    def f(df):
+        df = df.copy()
+        df.loc[int(frac * len(df)):, "relay"] = 1.0
+        return df
+    return f
+
+
+def _reshort_middle(df):
+    df = df.copy()
+    df.loc[700:720, "relay"] = 1.0
+    return df
+
+
+def _clip(col, level):
+    def f(df):
+        x = df[col].to_numpy()
+        m = level * np.nanmax(np.abs(x))
+        return df.assign(**{col: np.clip(x, -m, m)})
+    return f
+
+
+def _noise(col, sd=1e-3):
+    def f(df):
+        return df.assign(**{col: sd * np.random.default_rng(3).standard_normal(len(df))})
+    return f
+
+
+def _tiny(n_short, n_rel):
+    """A trial of ``n_short`` shorted and ``n_rel`` connected samples (driven), on a continuous time base."""
+    def f(df):
+        import pandas as pd
+
+        out = pd.concat([df.iloc[:n_short], df.iloc[500:500 + n_rel]]).reset_index(drop=True)
+        return out.assign(t=np.arange(len(out)) * 1e-3)
+    return f
+
+
+PLAUSIBILITY = [
+    # (id, mutation, file, field, row, fragment, level)
+    ("shunt-scale-1000x-high", mod_rig(lambda r: r.update(shunt_resistance_ohm=1e6)),
+     "free_sine.parquet", "v_shunt", None, "ratio 0.001", "error"),
+    ("shunt-scale-1000x-low", mod_rig(lambda r: r.update(shunt_resistance_ohm=1.0)),
+     "blocked_sine.csv", "v_shunt", None, "ratio 1e+03", "error"),
+    ("inamp-gain-100x", mod_rig(lambda r: r.update(inamp_gain=1000.0)),
+     "obj_mixed.parquet", "v_shunt", None, "check shunt_resistance_ohm, inamp_gain", "error"),
+    ("capacitance-1000x", mod_rig(lambda r: r["actuator_catalog"].update(capacitance_f=0.25e-3)),
+     "free_steps.csv", "v_shunt", None, "n_actuators * capacitance_f * V", "error"),
+    ("n-actuators-wrong", mod_rig(lambda r: r.update(n_actuators=1)),
+     "free_sine.parquet", "v_shunt", None, "ratio 5", "warning"),
+    ("shunt-noise-only", mod_log("free_sine.parquet", _noise("v_shunt")),
+     "free_sine.parquet", "v_shunt", None, "noise-only or disconnected shunt", "error"),
+    ("shunt-clipped-below-adc-range", mod_log("blocked_sine.csv", _clip("v_shunt", 0.5)),
+     "blocked_sine.csv", "v_shunt", ANY, "no flat tops", "error"),
+    ("laser-clipped-below-adc-range", mod_log("free_steps.csv", _clip("laser", 0.6)),
+     "free_steps.csv", "laser", ANY, "no flat tops", "error"),
+    ("load-cell-clipped-low", mod_log("blocked_sine.csv", _clip("load_cell", 0.4)),
+     "blocked_sine.csv", "load_cell", ANY, "no flat tops", "error"),
+    ("relay-released-late", mod_log("free_sine.parquet", _late_release),
+     "free_sine.parquet", "relay", ANY, "for at least 50 % of the trial", "error"),
+    ("relay-reshorted-for-good", mod_log("blocked_sine.csv", _reshort(0.8)),
+     "blocked_sine.csv", "relay", ANY, "re-shorted for good", "error"),
+    ("relay-reshorted-middle", mod_log("obj_mixed.parquet", _reshort_middle),
+     "obj_mixed.parquet", "relay", 701, "1 later relay = 1 segment", "warning"),
+    ("free-tip-recorded-blocked", mod_log("free_sine.parquet", _noise("laser")),
+     "free_sine.parquet", "laser", None, "a free tip moves the laser spot", "error"),
+    ("free-tip-laser-tiny", mod_log("free_steps.csv", lambda df: df.assign(laser=df.laser * 0.02)),
+     "free_steps.csv", "laser", None, "a free-tip displacement of the size", "error"),
+    ("laser-scale-100x", mod_rig(lambda r: r["reference"].update(laser_m_per_v=0.2)),
+     "free_sine.parquet", "laser", None, "laser_m_per_v wrong?", "error"),
+    ("blocked-load-cell-flat", mod_log("blocked_sine.csv", _noise("load_cell")),
+     "blocked_sine.csv", "load_cell", None, "a blocked tip presses the load cell", "error"),
+    ("object-never-reached", mod_log("obj_mixed.parquet", _noise("load_cell")),
+     "obj_mixed.parquet", "load_cell", None, "the tip reaches the object", "warning"),
+    ("three-sample-trial", mod_log("free_sine.parquet", _tiny(1, 2)),
+     "free_sine.parquet", "relay", None, "samples with relay = 0 (actuator connected; rig.yaml plausibility.min_samples), found '2 of 3 samples'", "error"),
+    ("forty-sample-trial", mod_log("blocked_sine.csv", _tiny(20, 40)),
+     "blocked_sine.csv", "relay", None, "at least 50 samples with relay = 0", "error"),
+    ("plausibility-limit-from-rig", mod_rig(lambda r: r.update(plausibility={"charge_ratio_warn_max": 0.9})),
+     "free_sine.parquet", "v_shunt", None, "ratio in [0.5, 0.9]", "warning"),
+]
+
+
+@pytest.mark.parametrize("case", PLAUSIBILITY, ids=[c[0] for c in PLAUSIBILITY])
+def test_plausibility(dataset, case):
+    _, mutate, file, field, row, frag, level = case
+    mutate(dataset)
+    errors, warnings = check_dataset(dataset)
+    found = match(errors if level == "error" else warnings, file, field, row, frag)
+    assert found, "\n".join(map(str, errors + warnings)) or "nothing found"
+    assert found.level == level
+    if level == "error":
+        with pytest.raises(ContractError):
+            load_dataset(dataset)
+    else:
+        assert not errors and load_dataset(dataset)
+
+
+def test_pristine_has_no_plausibility_findings(dataset):
+    assert check_dataset(dataset) == ([], [])
+
+
+@pytest.mark.parametrize("name", ["tweezer_sim", "sample"])
+def test_bundled_datasets_are_plausible(name):
+    d = Path(__file__).resolve().parents[2] / "data" / "raw" / name
+    if not d.is_dir():
+        pytest.skip("bundled dataset missing")
+    assert check_dataset(d, pipeline=True) == ([], [])
+
+
+# ---- what the pipeline needs beyond the contract (selfsense validate fails, not a later fit) -------------
+PIPELINE = [
+    ("no-force-calibration", mod_trials(lambda r: [r[0], r[2], r[3]] + [[r[1][0], r[1][1], "validation",
+                                                                       *r[1][3:]]]),
+     "reference", "with reference 'force'"),
+    ("no-displacement-calibration",
+     mod_trials(lambda r: [[*r[0][:5], "force", r[0][6]], *r[1:]]), "reference", "with reference 'displacement'"),
+    ("no-validation-trial", mod_trials(lambda r: [[*x[:2], "calibration", *x[3:]] for x in r]),
+     "role", "at least one 'validation' trial"),
+]
+
+
+@pytest.mark.parametrize("case", PIPELINE, ids=[c[0] for c in PIPELINE])
+def test_pipeline_requirements(dataset, case, capsys):
+    from selfsense.io.cli import main
+
+    _, mutate, field, frag = case
+    mutate(dataset)
+    errors, _ = check_dataset(dataset, pipeline=True)
+    assert match(errors, "trials.csv", field, None, frag), errors
+    assert main([str(dataset)]) == 1
+    assert frag in capsys.readouterr().out
+
+
+# ---- YAML: aliases refused, long values truncated -------------------------------------------------------
+BOMB = "a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi"))
+
+
+def _rig_append(text):
+    def m(d):
+        p = d / "rig.yaml"
+        p.write_text(p.read_text() + text)
+    return m
+
+
+YAML_CASES = [
+    ("rig-alias-bomb-unknown-key", _rig_append(BOMB.replace("i: &i", "notes: &i")), "no YAML aliases"),
+    ("rig-alias-bomb-known-key", lambda d: (d / "rig.yaml").write_text(
+        (d / "rig.yaml").read_text().replace("dataset: ds", BOMB + "dataset: ds").replace(
+            "n_actuators: 5", "n_actuators: *i")), "no YAML aliases"),
+    ("rig-merge-key", lambda d: (d / "rig.yaml").write_text(
+        "base: &b {inamp_gain: 10.0}\n<<: *b\n" + (d / "rig.yaml").read_text()), "no YAML aliases"),
+    ("rig-long-value", mod_rig(lambda r: r.update(dataset="x" * 100_000)), "more characters"),
+    ("rig-long-key", mod_rig(lambda r: r.update({"k" * 5000: 1})), "unknown key"),
+    ("rig-plausibility-unknown", mod_rig(lambda r: r.update(plausibility={"charge_ratio": 3})),
+     "did you mean 'charge_ratio_min'?"),
+    ("rig-plausibility-negative", mod_rig(lambda r: r.update(plausibility={"min_samples": -1})), ">= 0"),
+    ("rig-plausibility-inverted", mod_rig(lambda r: r.update(plausibility={"charge_ratio_min": 9.0})),
+     "a value <= plausibility.charge_ratio_max"),
+    ("rig-plausibility-not-mapping", mod_rig(lambda r: r.update(plausibility=[1, 2])), "a mapping"),
+]
+
+
+@pytest.mark.parametrize("case", YAML_CASES, ids=[c[0] for c in YAML_CASES])
+def test_rig_yaml_safety(dataset, case):
+    import time
+
+    _, mutate, frag = case
+    mutate(dataset)
+    t0 = time.process_time()
+    errors, _ = check_dataset(dataset)
+    assert time.process_time() - t0 < 30  # not a timing test: a runaway alias expansion would take minutes
+    msg = "\n".join(map(str, errors))
+    assert any(frag in str(p) and p.file == "rig.yaml" for p in errors), msg
+    assert all(len(str(p)) < 600 for p in errors), max(map(len, map(str, errors)))
+
+
+# ---- output folders: no data loss -----------------------------------------------------------------------
+def test_output_dir_refuses_foreign_folder(tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("precious")
+    with pytest.raises(OutputError, match="did not create"):
+        with output_dir(out) as tmp:
+            (tmp / "x").write_text("1")
+    assert (out / "notes.txt").read_text() == "precious" and not (out / "x").exists()
+
+
+def test_output_dir_refuses_dataset_even_with_marker(tmp_path, dataset):
+    (dataset / MARKER).write_text("")
+    before = _tree_hash(dataset)
+    with pytest.raises(OutputError, match="rig.yaml/trials.csv"):
+        check_output_dir(dataset)
+    assert _tree_hash(dataset) == before
+
+
+def test_output_dir_replaces_own_folder_atomically(tmp_path):
+    out = tmp_path / "o"
+    with output_dir(out) as tmp:
+        (tmp / "a.txt").write_text("1")
+    assert (out / MARKER).is_file()
+    with output_dir(out) as tmp:
+        (tmp / "b.txt").write_text("2")
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "b.txt"]  # the old set is gone as a whole
+
+
+def test_output_dir_failure_keeps_previous(tmp_path):
+    out = tmp_path / "o"
+    with output_dir(out) as tmp:
+        (tmp / "a.txt").write_text("old")
+    with pytest.raises(RuntimeError):
+        with output_dir(out) as tmp:
+            (tmp / "a.txt").write_text("half")
+            raise RuntimeError("crash mid-write")
+    assert (out / "a.txt").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".o.tmp")] == []
+
+
+def test_output_dir_force_replaces_foreign(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "junk").write_text("x")
+    with output_dir(out, force=True) as tmp:
+        (tmp / "new").write_text("y")
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "new"]
+
+
+def test_output_dir_lock_refuses_second_writer(tmp_path):
+    out = tmp_path / "o"
+    with output_dir(out) as tmp:
+        (tmp / "a").write_text("1")
+        with pytest.raises(OutputError, match="another selfsense command"):
+            with output_dir(out):
+                pass
+    assert (out / "a").read_text() == "1"
+
+
+@pytest.mark.parametrize("where", ["same", "inside", "contains", "symlink"])
+def test_output_overlapping_input_refused(tmp_path, where):
+    inp = tmp_path / "in"
+    inp.mkdir()
+    (inp / "f").write_text("keep")
+    out = {"same": inp, "inside": inp / "sub", "contains": tmp_path}.get(where)
+    if where == "symlink":
+        out = tmp_path / "link"
+        out.symlink_to(inp)
+    with pytest.raises(OutputError, match="input"):
+        check_output_dir(out, [inp], force=True)
+    assert (inp / "f").read_text() == "keep"
+
+
+def test_atomic_writes_are_0644_under_umask(tmp_path):
+    from selfsense.io import atomic_write_text, savefig_atomic
+
+    old = os.umask(0o022)
+    try:
+        p = atomic_write_text(tmp_path / "a.txt", "x")
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure()
+        q = savefig_atomic(fig, tmp_path / "f.png")
+        plt.close(fig)
+        os.umask(0o077)
+        r = atomic_write_text(tmp_path / "b.txt", "x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644 and stat.S_IMODE(q.stat().st_mode) == 0o644
+    assert stat.S_IMODE(r.stat().st_mode) == 0o600  # the umask is respected
+    assert q.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_atomic_write_refuses_any_dataset_folder(tmp_path, dataset):
+    from selfsense.io import RawDataWriteError, atomic_write_text
+
+    with pytest.raises(RawDataWriteError, match="inside the raw dataset"):
+        atomic_write_text(dataset / "sub" / "x.json", "{}")
+    assert not (dataset / "sub").exists()
+
+
+# ---- CLI: data loss, one-line errors with exit 2, no traceback --------------------------------------------
+def _cli(argv, capsys):
+    from selfsense.cli import main
+
+    rc = main(argv)
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.err + cap.out
+    return rc, cap.err
+
+
+def test_cli_simulate_refuses_foreign_folder(tmp_path, capsys):
+    out = tmp_path / "tweezer_copy"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    rc, err = _cli(["simulate", "--preset", "sample", "--out", str(out)], capsys)
+    assert rc == 2 and "did not create" in err and "--force" in err
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_cli_simulate_refuses_data_tree(tmp_path, capsys, dataset):
+    before = _tree_hash(dataset.parent)
+    rc, err = _cli(["simulate", "--preset", "sample", "--out", str(dataset)], capsys)
+    assert rc == 2 and "rig.yaml/trials.csv" in err
+    rc, err = _cli(["simulate", "--preset", "sample", "--out", str(dataset.parent)], capsys)
+    assert rc == 2 and "did not create" in err
+    assert _tree_hash(dataset.parent) == before
+
+
+def test_cli_estimate_out_equal_to_log_refused(tmp_path, capsys, dataset):
+    log = tmp_path / "log.parquet"
+    log.write_bytes((dataset / "free_sine.parquet").read_bytes())
+    model = tmp_path / "m.json"
+    model.write_text("{}")
+    before = log.read_bytes()
+    rc, err = _cli(["estimate", "--model", str(model), "--dataset", str(dataset), "--log", str(log),
+                    "--out", str(log)], capsys)
+    assert rc == 2 and "resolves to the input" in err and len(err.strip().splitlines()) == 1
+    link = tmp_path / "alias.parquet"
+    link.symlink_to(log)
+    rc, err = _cli(["estimate", "--model", str(model), "--dataset", str(dataset), "--log", str(log),
+                    "--out", str(link)], capsys)
+    assert rc == 2 and "resolves to the input" in err
+    rc, err = _cli(["estimate", "--model", str(model), "--dataset", str(dataset), "--log", str(log),
+                    "--out", str(dataset / "est.parquet")], capsys)
+    assert rc == 2 and "inside the input" in err
+    assert log.read_bytes() == before and not (dataset / "est.parquet").exists()
+
+
+def test_cli_gap_diagnose_bad_dataset_one_line(tmp_path, capsys, dataset):
+    mod_rig(lambda r: r.update(inamp_gain=-1))(dataset)
+    rc, err = _cli(["gap", "diagnose", str(dataset), "--out", str(tmp_path / "g")], capsys)
+    assert rc == 2 and "inamp_gain" in err and "> 0" in err
+    assert not (tmp_path / "g").exists()
+
+
+def test_cli_gap_diagnose_out_inside_dataset(tmp_path, capsys, dataset):
+    before = _tree_hash(dataset)
+    rc, err = _cli(["gap", "diagnose", str(dataset), "--out", str(dataset / "gap")], capsys)
+    assert rc == 2 and "input" in err
+    assert _tree_hash(dataset) == before
+
+
+def test_cli_gap_diagnose_foreign_out(tmp_path, capsys, dataset):
+    out = tmp_path / "g"
+    out.mkdir()
+    (out / "keep.txt").write_text("k")
+    rc, err = _cli(["gap", "diagnose", str(dataset), "--out", str(out)], capsys)
+    assert rc == 2 and "did not create" in err and (out / "keep.txt").read_text() == "k"
+
+
+def test_cli_gap_bogus_estimator(tmp_path, capsys, dataset):
+    with pytest.raises(SystemExit) as e:
+        _cli(["gap", "diagnose", str(dataset), "--out", str(tmp_path / "g"), "--estimator", "bogus"], capsys)
+    assert e.value.code == 2
+
+
+def test_cli_gap_api_bogus_estimator_no_fallback(tmp_path, dataset):
+    from selfsense.gap.api import run_diagnose
+
+    with pytest.raises(ValueError, match="expected 'sensing', 'sensing_ri' or 'fast', found 'bogus'"):
+        run_diagnose(dataset, tmp_path / "g", estimator="bogus")
+
+
+def test_cli_validate_semicolon_csv_hint(dataset, capsys):
+    p = dataset / "free_steps.csv"
+    df = read_any(p)
+    p.write_text(df.to_csv(index=False, sep=";", decimal=","))
+    rc, _ = _cli(["validate", str(dataset)], capsys)
+    assert rc == 1
+    errors, _ = check_dataset(dataset)
+    mine = [str(e) for e in errors if e.file == "free_steps.csv"]
+    assert len(mine) == 1 and "semicolon" in mine[0], mine
+
+
+def test_cli_validate_comma_decimal_hint(dataset):
+    p = dataset / "free_steps.csv"
+    df = read_any(p)
+    p.write_text(df.to_csv(index=False, sep=",", decimal=",", quoting=1))
+    errors, _ = check_dataset(dataset)
+    mine = [str(e) for e in errors if e.file == "free_steps.csv"]
+    assert any("decimal comma" in m for m in mine), mine
+
+
+def test_cli_internal_error_is_one_line(monkeypatch, capsys):
+    import selfsense.io.cli as vcli
+
+    def boom(argv):
+        raise ZeroDivisionError("x" * 10_000)
+    monkeypatch.setattr(vcli, "main", boom)
+    rc, err = _cli(["validate", "whatever"], capsys)
+    assert rc == 1 and "internal error (ZeroDivisionError" in err and len(err) < 800
+
+
+# ---- pipeline config: refused when it loads ------------------------------------------------------------
+def _cfg(**kw):
+    cfg = {"datasets": ["ds"], "raw_dir": "data/raw", "results_dir": "results", "calibration": {"solver": "CLARABEL"},
+           "gap": {"enabled": True}}
+    cfg.update(kw)
+    return cfg
+
+
+CONFIG_CASES = [
+    ("results-equals-raw", _cfg(results_dir="data/raw"), "apart from raw_dir"),
+    ("results-inside-raw", _cfg(results_dir="data/raw/out"), "apart from raw_dir"),
+    ("raw-inside-results", _cfg(results_dir="data"), "apart from raw_dir"),
+    ("results-in-dataset", _cfg(raw_dir="raw", results_dir="raw/../raw/ds/res"), "apart from raw_dir"),
+    ("unknown-solver", _cfg(calibration={"solver": "NOPE"}), "expected an installed cvxpy solver"),
+    ("solver-not-string", _cfg(calibration={"solver": 3}), "a cvxpy solver name"),
+    ("gap-estimator-bogus", _cfg(gap={"estimator": "bogus"}), "gap.estimator"),
+    ("results-dir-empty", _cfg(results_dir=""), "expected a folder path"),
+]
+
+
+@pytest.mark.parametrize("case", CONFIG_CASES, ids=[c[0] for c in CONFIG_CASES])
+def test_config_refused_at_load(tmp_path, case):
+    from selfsense.io.config import ConfigError, check_config
+
+    _, cfg, frag = case
+    with pytest.raises(ConfigError, match=frag.replace("(", r"\(")):
+        check_config(cfg, workdir=tmp_path)
+
+
+def test_config_results_symlink_into_raw(tmp_path):
+    from selfsense.io.config import ConfigError, check_config
+
+    (tmp_path / "data" / "raw").mkdir(parents=True)
+    (tmp_path / "res").symlink_to(tmp_path / "data" / "raw")
+    with pytest.raises(ConfigError, match="symlinks resolved"):
+        check_config(_cfg(results_dir="res"), workdir=tmp_path)
+    check_config(_cfg(), workdir=tmp_path)  # the default layout passes
+
+
+def test_config_alias_bomb_file_refused(tmp_path):
+    from selfsense.io.config import ConfigError, check_config
+
+    p = tmp_path / "c.yaml"
+    p.write_text(BOMB + "datasets: [ds]\ngap: {enabled: true, extra: *i}\n")
+    with pytest.raises(ConfigError, match="aliases"):
+        check_config({}, [p], workdir=tmp_path)
+
+
+def test_config_shared_subtree_refused(tmp_path):
+    from selfsense.io.config import ConfigError, check_config
+
+    shared = {"x": [1, 2]}
+    with pytest.raises(ConfigError, match="aliases"):
+        check_config(_cfg(gap={"a": shared, "b": shared}), workdir=tmp_path)
+
+
+@pytest.mark.parametrize("gap,ok", [({"enabled": True, "estimator": "sensing_ri", "seed": 3}, True),
+                                     ({"estimator": "bogus"}, False), ({"enabled": True, "typo": 1}, False),
+                                     ({"benchmark": {"n": 2, "tier": "fast"}}, True),
+                                     ({"benchmark": {"n": 2, "tiers": "fast"}}, False)])
+def test_schema_gap_block_closed(gap, ok):
+    import jsonschema
+
+    schema = yaml.safe_load((Path(__file__).resolve().parents[2] / "workflow/schemas/config.schema.yaml").read_text())
+    cfg = {"datasets": ["x"], "gap": gap}
+    if ok:
+        jsonschema.validate(cfg, schema)
+    else:
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(cfg, schema)
+
+
+def test_run_refuses_bad_config_before_snakemake(tmp_path, capsys, monkeypatch):
+    import subprocess
+
+    (tmp_path / "Snakefile").write_text("")
+    (tmp_path / "config.yaml").write_text("datasets: [ds]\nraw_dir: data/raw\nresults_dir: data/raw\n")
+    monkeypatch.setattr(subprocess, "call", lambda *a, **k: pytest.fail("snakemake must not start"))
+    rc, err = _cli(["run", "--directory", str(tmp_path)], capsys)
+    assert rc == 2 and "apart from raw_dir" in err
+
+
+def test_catalogue_total():
+    """At least 100 fault / bad-input cases in the two catalogue files (tables + single-case tests here)."""
+    singles = [k for k, v in globals().items() if k.startswith("test_") and callable(v)
+               and k not in {"test_catalogue_total", "test_pristine_has_no_plausibility_findings", "test_plausibility",
+                             "test_pipeline_requirements", "test_rig_yaml_safety", "test_config_refused_at_load"}]
+    n = len(PART1) + len(PLAUSIBILITY) + len(PIPELINE) + len(YAML_CASES) + len(CONFIG_CASES) + len(singles)
+    assert n >= 100, n
