@@ -160,12 +160,16 @@ def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float]) -> tu
 
 
 def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: str,
-                       limits: Mapping[str, float] | None = None) -> list[Problem]:
+                       limits: Mapping[str, float] | None = None, metrics: dict | None = None) -> list[Problem]:
     """Plausibility findings for one canonical log frame that passed :func:`selfsense.io.logs.check_signals`.
 
     ``trial`` is the trials.csv record (``tip``, ``reference``, ``role``); ``rig`` a :class:`~selfsense.io.rig.Rig`.
-    Returns problems with ``level`` ``"error"`` or ``"warning"``.
+    Returns problems with ``level`` ``"error"`` or ``"warning"``. If ``metrics`` is a dict it receives the
+    measured quantities (``released_fraction``, ``charge_ratio``, ``charge_corr``, ``reference_snr``,
+    ``free_displacement_ratio``) so that limits can be set from data (``selfsense validate --metrics``).
     """
+    if metrics is None:
+        metrics = {}
     lim = dict(DEFAULTS)
     lim.update(limits if limits is not None else (getattr(rig, "plausibility", None) or {}))
     out: list[Problem] = []
@@ -181,6 +185,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
             "rig.yaml plausibility.min_samples)", f"{n_rel} of {n} samples")
         return out
     frac = n_rel / n
+    metrics["released_fraction"] = frac
     if frac < lim["min_released_fraction"]:
         first = int(np.flatnonzero(released)[0]) + 1
         err("relay", first, f"relay = 0 (actuator connected) for at least {100 * lim['min_released_fraction']:g} % "
@@ -219,6 +224,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
         ratio = ptp_q / (C * ptp_V)
         sq, sv = float(np.std(q)), float(np.std(V))
         corr = float(np.corrcoef(q, V)[0, 1]) if sq > 0 and sv > 0 else 0.0
+        metrics["charge_ratio"], metrics["charge_corr"] = ratio, corr
         scale_hint = ("check shunt_resistance_ohm, inamp_gain, n_actuators and actuator_catalog.capacitance_f "
                       "in rig.yaml")
         if not (corr >= lim["min_charge_correlation"]):
@@ -256,6 +262,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
         if x.size > 10:
             rr, sig = _robust_range(x), _noise_sigma(x)
             snr = rr / sig if sig > 0 else (math.inf if rr > 0 else 0.0)
+            metrics["reference_snr"] = snr
             what = {"free": "a free tip moves the laser spot", "blocked": "a blocked tip presses the load cell",
                     "object": "the tip reaches the object"}[tip]
             if snr < lim["min_reference_snr"]:
@@ -267,6 +274,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
                 dx = 2.0 * abs(rig.reference.laser_m_per_v) * rr
                 expect = rig.tip_free_displacement_m * ptp_V / rig.actuator_catalog.max_voltage_v
                 r = dx / expect
+                metrics["free_displacement_ratio"] = r
                 if not (lim["free_displacement_ratio_min"] <= r <= lim["free_displacement_ratio_max"]):
                     err(ref_col, None, "a free-tip displacement of the size tip_free_displacement_m * V / "
                         f"max_voltage_v gives, ratio in [{lim['free_displacement_ratio_min']:g}, "
