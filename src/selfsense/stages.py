@@ -149,18 +149,25 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
 
     rig = sio.load_rig(dataset_dir)
     meta = _meta(dataset_dir)
-    sigs = _load_signals(signal_paths)
+    # memory bounded by the longest trial, not the dataset: calibration trials stay loaded (the fits need them),
+    # every other trial is read, estimated and scored one at a time, keeping only its error row
+    cal = {t: p for t, p in signal_paths.items() if t in meta.index and meta.loc[t, "role"] == "calibration"}
+    sigs = _load_signals(cal)
     rows = []
     for h_model, mode in (("modified_pi", "thesis"), ("modified_pi", "onsite"), ("ri", "thesis"), ("ri", "onsite")):
         cfg = dict(config)
         cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model)
         est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
-        ests = {}
-        for t, s in sigs.items():
+        pts = []
+        for t in sorted(signal_paths):
+            s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t])
             e = est.estimate(s)
-            e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
-            ests[t] = e
-        t3 = tables.table3(tables.per_trial_table(ests, meta.reset_index()))
+            e = pd.DataFrame({"dx_hat": e["dx_hat"].to_numpy(), "f_hat": e["f_hat"].to_numpy(),
+                              "dx_ref": s["dx_ref"].to_numpy(), "f_ref": s["f_ref"].to_numpy()})
+            del s
+            pts.append(tables.per_trial_table({t: e}, meta.reset_index()))
+            del e
+        t3 = tables.table3(pd.concat(pts, ignore_index=True))
         for _, r in t3.iterrows():
             rows.append({"h_model": h_model, "h_mode": mode, "measurement": r["measurement"],
                          "mean_abs_error": r["mean_abs_error"],
@@ -202,7 +209,12 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
     rep = est.fit_report_["hysteresis"]
     caps["fig21_h_calibration"] = F.fig_h_calibration(sig_free, Ht, Hf, out_dir, free_trial,
                                                       rep.get("rms_pct", np.nan), rep.get("max_pct", np.nan))
-    full = {t: pd.read_parquet(p) for t, p in internals_paths.items()}
+    # sample budget (selfsense.io.budget): a long trial is drawn from every k-th row, read batch by batch
+    full, dec = {}, {}
+    for t, p in internals_paths.items():
+        full[t], k = sio.read_parquet_decimated(p, sio.FIGURE_MAX_ROWS)
+        if k > 1:
+            dec[t] = k
     disp = [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement" and meta.loc[t, "role"] == "validation"]
     disp = disp or [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement"]
     if disp:
@@ -222,6 +234,10 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
         if same:
             caps["fig39_mismatch_subtraction"] = F.fig_mismatch(full[ft], full[same[0]], out_dir, ft, same[0])
             break
+    if dec:
+        note = " Long trials drawn from every k-th sample: " + ", ".join(f"{t} k = {k}" for t, k in sorted(dec.items()))
+        caps = {s: (c + note if s.startswith(("fig24", "fig25", "fig31", "fig37", "fig39")) else c)
+                for s, c in caps.items()}
     sio.write_json_atomic(caps, out_dir / "captions.json")
     return caps
 

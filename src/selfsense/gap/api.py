@@ -36,6 +36,10 @@ def run_diagnose(dataset_dir, out_dir, estimator: str = "sensing", seed: int = 0
             raise
         d = diagnose(case, estimator="fast", seed=seed, n_boot=n_boot)
         d.verdict["estimator_fallback"] = f"{estimator!r} failed ({type(exc).__name__}: {exc}); used 'fast'"
+    if case.decimated:  # say what was done (sample budget, selfsense.io.budget)
+        d.verdict["decimated"] = {t: int(k) for t, k in sorted(case.decimated.items())}
+        d.verdict["decimation_note"] = ("trials longer than the sample budget were diagnosed on block means of k "
+                                        "samples (k per trial in 'decimated'); the charge was integrated first")
     with output_dir(out_dir, [dataset_dir], force=force) as tmp:
         write_diagnosis(d, tmp, figures=figures)
     return d

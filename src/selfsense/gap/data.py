@@ -24,6 +24,7 @@ class Case:
     name: str = "dataset"
     truth: dict | None = None
     truth_manifest: dict | None = field(default=None, repr=False)
+    decimated: dict = field(default_factory=dict)  #: trial -> k for trials reduced to block means (sample budget)
 
 
 def prepare_fallback(si: pd.DataFrame, R: float) -> pd.DataFrame:
@@ -77,13 +78,32 @@ def load_truth(dataset_dir: Path) -> tuple[dict | None, dict | None]:
     return truth, man
 
 
-def load_case(dataset_dir: str | Path, with_truth: bool = True) -> Case:
-    """Read and validate a raw dataset (DATA_FORMAT.md) through ``selfsense.io`` and prepare every trial."""
-    from selfsense.io import load_dataset, trial_signals
+def load_case(dataset_dir: str | Path, with_truth: bool = True, max_samples: int | None = None) -> Case:
+    """Read and validate a raw dataset (DATA_FORMAT.md) through ``selfsense.io`` and prepare every trial.
 
+    Sample budget (:mod:`selfsense.io.budget`): a trial longer than ``max_samples`` (default
+    ``GAP_MAX_SAMPLES``) is reduced to block means of k samples after the charge is integrated at the full rate
+    (thesis eq. 57), and its truth frame with the same k; ``case.decimated`` maps such trials to k. Memory then
+    grows with the budget, not with the trial length."""
+    from selfsense.io import load_dataset, trial_signals
+    from selfsense.io.budget import GAP_MAX_SAMPLES, block_mean, decimation_factor
+
+    budget = GAP_MAX_SAMPLES if max_samples is None else int(max_samples)
     d = Path(dataset_dir)
     ds = load_dataset(d)
     meta = ds.trials.set_index("trial")
-    trials = {t: _prepare(trial_signals(d, t, ds.rig), ds.rig) for t in meta.index}
+    trials, decimated = {}, {}
+    for t in meta.index:
+        df = _prepare(trial_signals(d, t, ds.rig), ds.rig)
+        k = decimation_factor(len(df), budget)
+        if k > 1:
+            df = block_mean(df, k).reset_index(drop=True)
+            decimated[t] = k
+        trials[t] = df
     truth, man = load_truth(d) if with_truth else (None, None)
-    return Case(trials=trials, meta=meta, rig=ds.rig, name=ds.name, truth=truth, truth_manifest=man)
+    if truth is not None:
+        truth = {t: (block_mean(f, decimated[t]).reset_index(drop=True) if t in decimated else f)
+                 for t, f in truth.items()}
+    case = Case(trials=trials, meta=meta, rig=ds.rig, name=ds.name, truth=truth, truth_manifest=man)
+    case.decimated = decimated
+    return case

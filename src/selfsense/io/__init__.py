@@ -5,6 +5,7 @@ Knows no physics beyond the unit conversions of DATA_FORMAT.md. See docs/data_fo
 from .atomic import (RawDataWriteError, assert_not_in_raw, atomic_write, atomic_write_bytes, atomic_write_text,
                      dumps_json, parquet_bytes, write_bytes_atomic, write_json_atomic, write_parquet_atomic,
                      savefig_atomic, write_text_atomic)
+from .budget import FIGURE_MAX_ROWS, GAP_MAX_SAMPLES, block_mean, read_parquet_decimated
 from .outputs import MARKER, OutputError, check_output_dir, check_output_file, output_dir, output_lock
 from .dataset import SI_COLUMNS, Dataset, check_dataset, load_dataset, to_si, trial_signals, validate_dataset
 from .errors import ContractError, Problem
