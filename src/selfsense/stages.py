@@ -220,14 +220,42 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
     if disp:
         pick = next((t for t in disp if meta.loc[t, "tip"] == "object"), disp[0])
         caps["fig24_limiting_dc_offset"] = F.fig_limiting(full[pick], out_dir, pick)
+    # Figs. 22-23: the sine and the mixed drive (the sine of the H(q) calibration trial when it is one)
+    sig_all = {t: sio.read_parquet_decimated(p, sio.FIGURE_MAX_ROWS, columns=["t", "V_c", "V", "u_cmd"])[0]
+               for t, p in signal_paths.items()}
+    for stem, kinds in (("fig22_input_sine", ("sine",)), ("fig23_input_mixed", ("mixed", "steps", "other"))):
+        cands = [t for kind in kinds for t in sorted(sig_all) if meta.loc[t, "signal"] == kind]
+        if kinds == ("sine",) and free_trial in cands:
+            cands.insert(0, free_trial)
+        if cands:
+            caps[stem] = F.fig_input(sig_all[cands[0]], out_dir, cands[0], stem)
     pt = pd.read_csv(per_trial_csv)
-    caps["fig25-30_displacement_trials"] = F.fig_trials(full, meta.reset_index(), "displacement", out_dir, pt)
-    caps["fig31-36_force_trials"] = F.fig_trials(full, meta.reset_index(), "force", out_dir, pt)
+    for measurement in ("displacement", "force"):
+        for role in ("validation", "calibration"):
+            cap = F.fig_trials(full, meta.reset_index(), measurement, out_dir, pt, role=role)
+            if cap is not None:
+                stem = (("fig25-30_displacement_trials" if measurement == "displacement" else "fig31-36_force_trials")
+                        if role == "validation" else f"cal_{measurement}_trials")
+                caps[stem] = cap
     obj = [t for t in sorted(full) if meta.loc[t, "tip"] == "object"]
     if obj:
-        caps["fig37_force_displacement"] = F.fig_force_displacement(full[obj[0]], out_dir, obj[0])
+        # prefer a displacement-reference object trial whose twin (same object, drive and length) has the load cell
+        def twin(t):
+            m = meta.loc[t]
+            for o in obj:
+                mo = meta.loc[o]
+                if (o != t and mo["reference"] != m["reference"] and mo["signal"] == m["signal"]
+                        and str(mo["object_mm"]) == str(m["object_mm"]) and len(full[o]) == len(full[t])
+                        and np.allclose(sig_all[o]["u_cmd"].to_numpy(), sig_all[t]["u_cmd"].to_numpy(), atol=1e-6)):
+                    return o
+            return None
+        pick = next((t for t in obj if twin(t) is not None), obj[0])
+        tw = twin(pick)
+        caps["fig37_force_displacement"] = F.fig_force_displacement(full[pick], out_dir, pick,
+                                                                    full[tw] if tw else None, tw)
     # Fig. 39: a force trial minus the free-tip estimate under the same input history (same signal family)
-    forces = [t for t in sorted(full) if meta.loc[t, "reference"] == "force" and meta.loc[t, "tip"] != "free"]
+    forces = sorted((t for t in full if meta.loc[t, "reference"] == "force" and meta.loc[t, "tip"] != "free"),
+                    key=lambda t: (meta.loc[t, "role"] != "validation", t))  # a validation trial when there is one
     frees = [t for t in sorted(full) if meta.loc[t, "tip"] == "free"]
     for ft in forces:
         same = [t for t in frees if meta.loc[t, "signal"] == meta.loc[ft, "signal"] and len(full[t]) == len(full[ft])]
@@ -236,17 +264,22 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
             break
     if dec:
         note = " Long trials drawn from every k-th sample: " + ", ".join(f"{t} k = {k}" for t, k in sorted(dec.items()))
-        caps = {s: (c + note if s.startswith(("fig24", "fig25", "fig31", "fig37", "fig39")) else c)
+        caps = {s: (c + note if s.startswith(("fig22", "fig23", "fig24", "fig25", "fig31", "fig37", "fig39", "cal_"))
+                    else c)
                 for s, c in caps.items()}
     sio.write_json_atomic(caps, out_dir / "captions.json")
     return caps
 
 
-def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Path, failed: list[str] | None = None) -> str:
-    """One self-contained HTML report: tables, figures with captions, model summary, gap verdict if present."""
+def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Path, failed: list[str] | None = None,
+           config: Mapping[str, Any] | None = None) -> str:
+    """One self-contained HTML report: provenance (``config`` of the run, package version, git commit, dataset hash
+    and date), tables, model summary with units, figures with captions, gap verdict in words if present."""
     from selfsense.report.html import build_report
+    from selfsense.report.provenance import provenance
 
-    html = build_report(Path(dataset_dir), Path(results_dir), failed=failed or [])
+    html = build_report(Path(dataset_dir), Path(results_dir), failed=failed or [], config=config,
+                        provenance=provenance(dataset_dir))
     sio.write_text_atomic(html, out_html)
     return str(out_html)
 

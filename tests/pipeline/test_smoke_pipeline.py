@@ -92,3 +92,28 @@ def test_bit_identical_reruns(two_runs):
     assert ha.keys() == hb.keys()
     diff = [k for k in ha if ha[k] != hb[k]]
     assert not diff, f"outputs differ between two identical runs: {diff}"
+
+
+def test_report_in_headless_chromium(two_runs):
+    """The smoke run's report.html rendered by headless Chromium: every image loads, no JavaScript or console error,
+    no raw Markdown or JSON in the visible text. Screenshots are kept as test artefacts
+    ($SELFSENSE_TEST_ARTIFACTS, default test-artifacts/browser/)."""
+    from selfsense.report.browser import check_report, chromium, screenshot
+
+    if chromium() is None:
+        pytest.skip("Chromium is not installed (Debian: apt-get install -y chromium); the browser test needs it")
+    res, _ = two_runs
+    chk = check_report(res / "report.html")
+    figures = len(json.loads((res / "figures" / "captions.json").read_text()))
+    gap_pngs = len(list((res / "gap").glob("*.png")))
+    assert chk.n_images == figures + gap_pngs and chk.n_images >= 8
+    assert chk.broken_images == [], chk.broken_images
+    assert chk.errors == [] and chk.console == [], (chk.errors, chk.console)
+    assert chk.raw_markup == [], chk.raw_markup
+    for heading in ("Provenance", "Accuracy (thesis Table 3 / paper Table II)", "Calibrated model", "Figures",
+                    "Sim-to-real gap diagnostic"):
+        assert heading in chk.text
+    out = Path(os.environ.get("SELFSENSE_TEST_ARTIFACTS", ROOT / "test-artifacts")) / "browser"
+    for name, height in (("report_top.png", 2400), ("report_full.png", 16000)):
+        png = screenshot(res / "report.html", out / name, height=height)
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

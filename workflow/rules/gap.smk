@@ -31,7 +31,10 @@ rule gap_diagnose:
     params:
         dataset_dir=lambda w: os.path.join(RAW, w.dataset),
         out_dir=lambda w: f"{RESULTS}/{w.dataset}/gap",
-        estimator=config.get("gap", {}).get("estimator", "sensing"),
+        # the estimator the pipeline uses: the RI + creep model when calibration.h_model is ri (issue: the gap
+        # section must diagnose the model of Table 3), else the modified PI; gap.estimator overrides
+        estimator=config.get("gap", {}).get("estimator")
+        or ("sensing_ri" if config.get("calibration", {}).get("h_model") == "ri" else "sensing"),
         seed=config.get("gap", {}).get("seed", 0),
     log:
         RESULTS + "/{dataset}/logs/gap_diagnose.log",

@@ -191,6 +191,7 @@ rule report:
     params:
         dataset_dir=lambda w: os.path.join(RAW, w.dataset),
         results_dir=lambda w: f"{RESULTS}/{w.dataset}",
+        run_config=lambda w: dict(config),  # shown in the report's provenance block
     log:
         RESULTS + "/{dataset}/logs/report.log",
     benchmark:

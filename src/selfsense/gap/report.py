@@ -113,7 +113,7 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
                 ax.set_xlabel(f"{m} held-out mean |error| [% of range]")
                 ax.set_title(f"{m}: error by operating regime")
                 ax.tick_params(axis="y", labelsize=7)
-                ax.legend(fontsize=7)
+                ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=2, frameon=False)
             fig.tight_layout()
             p = out / "budget_regimes.png"
             savefig_atomic(fig, p, dpi=110)
@@ -131,8 +131,8 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
                    label=m, capsize=3)
         ax.set_xticks(x + 0.19, models, rotation=20, fontsize=8)
         ax.set_ylabel("held-out mean |error| [% of range]")
-        ax.set_title("Shrink: refit on calibration, evaluated on validation")
-        ax.legend()
+        ax.set_title("Shrink: refit on calibration, evaluated on validation", pad=22)
+        ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False, fontsize=8)
         fig.tight_layout()
         p = out / "shrink.png"
         savefig_atomic(fig, p, dpi=110)
@@ -160,8 +160,8 @@ def write_figures(d: Diagnosis, out: Path) -> dict:
                 ax.plot(V[sel][::step], e[sel][::step], ".", ms=2, color=col, label=lab)
             ax.set_xlabel("actuator voltage V [V]")
             ax.set_ylabel(f"{m} error [% of range]")
-            ax.set_title(f"{m} residual vs V by branch (nominal model)")
-            ax.legend(markerscale=4)
+            ax.set_title(f"{m} residual vs V by branch (nominal model)", pad=20)
+            ax.legend(markerscale=4, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False, fontsize=8)
         fig.tight_layout()
         p = out / "residual_vs_voltage.png"
         savefig_atomic(fig, p, dpi=110)

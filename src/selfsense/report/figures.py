@@ -32,11 +32,16 @@ STYLE = {
 FIGURES = {
     "fig17_voltage_charge": ("Fig. 17", "Fig. 8", "Hysteresis between actuator voltage and charge, with minor loops"),
     "fig21_h_calibration": ("Fig. 21", "Fig. 12", "Hysteresis operator H(q) calibration on the free-tip trial"),
+    "fig22_input_sine": ("Fig. 22", "-", "Sinusoidal driving voltage"),
+    "fig23_input_mixed": ("Fig. 23", "-", "Mixed trapezoidal and sinusoidal driving voltage"),
     "fig24_limiting_dc_offset": ("Fig. 24", "Fig. 13", "Effect of limiting and sliding DC offset"),
-    "fig25-30_displacement_trials": ("Figs. 25-30", "Fig. 14", "Self-sensed vs reference tip displacement"),
-    "fig31-36_force_trials": ("Figs. 31-36", "Fig. 15", "Self-sensed vs reference tip force"),
+    "fig25-30_displacement_trials": ("Figs. 25-30", "Fig. 14",
+                                     "Self-sensed vs reference tip displacement, validation trials"),
+    "fig31-36_force_trials": ("Figs. 31-36", "Fig. 15", "Self-sensed vs reference tip force, validation trials"),
     "fig37_force_displacement": ("Fig. 37", "-", "Force and displacement self-sensed on one time axis"),
     "fig39_mismatch_subtraction": ("Fig. 39", "Fig. 17", "Effect of hysteresis model mismatch (free-case subtraction)"),
+    "cal_displacement_trials": ("-", "-", "Self-sensed vs reference tip displacement on the calibration trials"),
+    "cal_force_trials": ("-", "-", "Self-sensed vs reference tip force on the calibration trials"),
 }
 
 
@@ -53,20 +58,76 @@ def _save(fig, out_dir: Path, stem: str) -> list[str]:
 
 def caption(stem: str, extra: str = "") -> str:
     thesis, paper, title = FIGURES[stem]
+    if thesis == "-":
+        return f"{title} (no counterpart in the thesis: the fits have seen these trials). {extra}".strip()
     ref = f"regenerates thesis {thesis}" + (f" / paper {paper}" if paper != "-" else "")
     return f"{title} ({ref}). {extra}".strip()
 
 
+def _legend_above(ax, ncol: int = 3, **kw) -> None:
+    """Legend above the axes, outside the data."""
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, frameon=False, fontsize=8,
+              borderaxespad=0.0, **kw)
+
+
+def _arrows(ax, x: np.ndarray, y: np.ndarray, colors, n: int = 14) -> None:
+    """Direction arrows along a path (x, y), coloured like the path at that point."""
+    L = len(x)
+    if L < 3:
+        return
+    idx = np.linspace(L * 0.03, L * 0.97, n).astype(int)
+    span = max(L // 200, 1)
+    for i in idx:
+        j = min(i + span, L - 1)
+        if x[j] == x[i] and y[j] == y[i]:
+            continue
+        ax.annotate("", xy=(x[j], y[j]), xytext=(x[i], y[i]),
+                    arrowprops=dict(arrowstyle="-|>", color=colors[i], lw=1.0, mutation_scale=11))
+
+
 def fig_voltage_charge(sig: pd.DataFrame, out_dir: Path, trial: str) -> str:
+    """Thesis Fig. 17: V-q loops coloured by time (colour bar) with direction arrows, so the minor loops and their
+    order can be told apart."""
+    from matplotlib.collections import LineCollection
+
     m = sig["relay"].to_numpy() < 0.5
+    V = sig["V"].to_numpy()[m]
+    q = sig["q"].to_numpy()[m] * 1e6
+    t = sig["t"].to_numpy()[m]
     with plt.rc_context(STYLE):
-        fig, ax = plt.subplots(figsize=(5.5, 4))
-        ax.plot(sig["V"].to_numpy()[m], sig["q"].to_numpy()[m] * 1e6, lw=0.7)
+        fig, ax = plt.subplots(figsize=(6.2, 4.2))
+        pts = np.column_stack([V, q])
+        segs = np.stack([pts[:-1], pts[1:]], axis=1)
+        norm = plt.Normalize(float(t.min()), float(t.max())) if len(t) else None
+        lc = LineCollection(segs, cmap="viridis", norm=norm, linewidths=0.9)
+        lc.set_array(t[:-1])
+        ax.add_collection(lc)
+        ax.autoscale()
+        cmap = plt.get_cmap("viridis")
+        _arrows(ax, V, q, cmap(norm(t)) if len(t) else [])
+        cb = fig.colorbar(lc, ax=ax)
+        cb.set_label("time t [s]")
         ax.set_xlabel("actuator voltage V [V]")
         ax.set_ylabel("charge q [µC]")
         ax.set_title(f"Voltage-charge hysteresis, trial {trial}")
         _save(fig, out_dir, "fig17_voltage_charge")
-    return caption("fig17_voltage_charge", f"Free-tip calibration trial {trial}; loops traversed counter-clockwise.")
+    return caption("fig17_voltage_charge", f"Free-tip calibration trial {trial}; colour = time (dark = start, "
+                                           "yellow = end), arrows give the direction of travel, so each minor loop "
+                                           "and the order of the loops can be followed.")
+
+
+def fig_input(sig: pd.DataFrame, out_dir: Path, trial: str, stem: str) -> str:
+    """Thesis Figs. 22-23: the driving voltage of a trial (amplifier output V_c and actuator voltage V) vs time."""
+    with plt.rc_context(STYLE):
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        ax.plot(sig["t"], sig["V_c"], lw=0.9, label="amplifier output V_c")
+        ax.plot(sig["t"], sig["V"], lw=0.7, ls="--", label="actuator voltage V = V_c - V_s")
+        ax.set_xlabel("time t [s]")
+        ax.set_ylabel("voltage [V]")
+        _legend_above(ax, ncol=2)
+        fig.tight_layout()
+        _save(fig, out_dir, stem)
+    return caption(stem, f"Trial {trial}; the relay shorts the actuator leads during the first segment (0 V).")
 
 
 def fig_h_calibration(sig: pd.DataFrame, H_target: np.ndarray, H_fit: np.ndarray, out_dir: Path, trial: str,
@@ -79,11 +140,12 @@ def fig_h_calibration(sig: pd.DataFrame, H_target: np.ndarray, H_fit: np.ndarray
         a1.plot(q, H_fit[m], lw=0.8, ls="--", label="fitted H(q)")
         a1.set_xlabel("charge q [µC]")
         a1.set_ylabel("H(q) [V]")
-        a1.legend(loc="best")
+        _legend_above(a1, ncol=1)
         a2.plot(sig["t"].to_numpy()[m], H_fit[m] - H_target[m], lw=0.6)
         a2.set_xlabel("time t [s]")
         a2.set_ylabel("H(q) fit error [V]")
         a2.set_title(f"RMS {rms_pct:.2f} %, max {max_pct:.2f} % of range")
+        fig.tight_layout()
         _save(fig, out_dir, "fig21_h_calibration")
     return caption("fig21_h_calibration", f"Trial {trial}; error in % of the output range (thesis: 0.58 % mean, 2.4 % max).")
 
@@ -98,55 +160,103 @@ def fig_limiting(est: pd.DataFrame, out_dir: Path, trial: str) -> str:
             ax.plot(t, est["dx_ref"].to_numpy() * 1e3, lw=0.7, color="k", alpha=0.6, label="reference (laser)")
         ax.set_xlabel("time t [s]")
         ax.set_ylabel("tip displacement Δx_tip [mm]")
-        ax.legend(loc="best")
+        _legend_above(ax)
+        fig.tight_layout()
         _save(fig, out_dir, "fig24_limiting_dc_offset")
     return caption("fig24_limiting_dc_offset", f"Trial {trial}.")
 
 
+_TIP_RANK = {"free": 0, "blocked": 0, "object": 1}
+
+
+def _thesis_order(meta: pd.DataFrame, trials: list[str], measurement: str) -> list[str]:
+    """Thesis order of Figs. 25-36: free (or blocked) tip first, then objects (small to large for displacement,
+    large to small for force), the sine before the mixed drive."""
+    def key(t):
+        m = meta.loc[t]
+        size = float(m["object_mm"]) if str(m["tip"]) == "object" and pd.notna(m["object_mm"]) else 0.0
+        return (_TIP_RANK.get(str(m["tip"]), 2), size if measurement == "displacement" else -size,
+                0 if str(m["signal"]) == "sine" else 1, t)
+    return sorted(trials, key=key)
+
+
 def fig_trials(estimates: Mapping[str, pd.DataFrame], meta: pd.DataFrame, measurement: str, out_dir: Path,
-               per_trial: pd.DataFrame) -> str:
-    stem = "fig25-30_displacement_trials" if measurement == "displacement" else "fig31-36_force_trials"
+               per_trial: pd.DataFrame, role: str = "validation") -> str | None:
+    """Thesis Figs. 25-30 (displacement) / 31-36 (force): one panel per ``role`` trial of that reference, in the
+    thesis' order; the calibration trials go to a figure of their own. Returns None when there is no such trial."""
+    if role == "validation":
+        stem = "fig25-30_displacement_trials" if measurement == "displacement" else "fig31-36_force_trials"
+    else:
+        stem = "cal_displacement_trials" if measurement == "displacement" else "cal_force_trials"
     hat, ref, scale, unit = ("dx_hat", "dx_ref", 1e3, "mm") if measurement == "displacement" else ("f_hat", "f_ref", 1e3, "mN")
     meta = meta.set_index("trial") if "trial" in meta.columns else meta
-    trials = [t for t in sorted(estimates) if meta.loc[t, "reference"] == measurement]
-    n = max(len(trials), 1)
-    ncol = 2
+    trials = [t for t in estimates if meta.loc[t, "reference"] == measurement and meta.loc[t, "role"] == role]
+    if not trials:
+        return None
+    trials = _thesis_order(meta, trials, measurement)
+    n = len(trials)
+    ncol = 2 if n > 1 else 1
     nrow = int(np.ceil(n / ncol))
     pt = per_trial.set_index("trial")
     with plt.rc_context(STYLE):
-        fig, axes = plt.subplots(nrow, ncol, figsize=(10, 2.4 * nrow), squeeze=False)
-        for ax, trial in zip(axes.ravel(), trials):
+        fig, axes = plt.subplots(nrow, ncol, figsize=(10 if ncol == 2 else 6, 2.5 * nrow + 0.5), squeeze=False)
+        for k, (ax, trial) in enumerate(zip(axes.ravel(), trials), start=1):
             e = estimates[trial]
             ax.plot(e["t"], e[ref] * scale, color="k", lw=0.8, alpha=0.7, label="reference")
-            ax.plot(e["t"], e[hat] * scale, lw=0.8, label="self-sensed")
+            ax.plot(e["t"], e[hat] * scale, lw=0.8, color="C0", label="self-sensed")
             m = meta.loc[trial]
             obj = f" {m['object_mm']} mm" if str(m["tip"]) == "object" else ""
-            ax.set_title(f"{trial} ({m['role']}, {m['tip']}{obj}, {m['signal']}): "
-                         f"{pt.loc[trial, 'percent_of_range']:.1f} % of range", fontsize=8)
+            err = pt.loc[trial, "percent_of_range"] if trial in pt.index else float("nan")
+            ax.set_title(f"{'Trial ' + str(k) + ': ' if role == 'validation' else ''}{trial} ({m['tip']}{obj}, "
+                         f"{m['signal']}): {err:.1f} % of range", fontsize=8)
             ax.set_xlabel("time t [s]")
             ax.set_ylabel(f"{'Δx_tip' if measurement == 'displacement' else 'f_tip'} [{unit}]")
-        for ax in axes.ravel()[len(trials):]:
+        for ax in axes.ravel()[n:]:
             ax.axis("off")
-        if trials:
-            axes[0, 0].legend(loc="best", fontsize=7)
-        fig.tight_layout()
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="upper center", ncol=2, frameon=False, fontsize=8)
+        fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.5 * nrow + 0.5)))
         _save(fig, out_dir, stem)
-    return caption(stem, f"All {measurement}-reference trials; the title gives the mean error in % of range.")
+    which = ("validation trials (never seen by a fit), in the thesis' order" if role == "validation" else
+             "calibration trials (used to fit H(q) and the coefficients; shown apart from the validation panels)")
+    return caption(stem, f"{n} {measurement}-reference {which.replace('trials', 'trial', 1) if n == 1 else which}; "
+                         "each title gives the trial's mean error in % of its reference range.")
 
 
-def fig_force_displacement(est: pd.DataFrame, out_dir: Path, trial: str) -> str:
+def fig_force_displacement(est: pd.DataFrame, out_dir: Path, trial: str,
+                           partner: pd.DataFrame | None = None, partner_trial: str | None = None) -> str:
+    """Thesis Fig. 37: self-sensed force and displacement on one time axis, each with its reference trace. A trial
+    has one reference sensor; the other reference comes from ``partner``, the trial with the same object and drive
+    that recorded the other sensor (when there is one)."""
+    refs = {"dx_ref": (est, trial), "f_ref": (est, trial)}
+    if partner is not None:
+        for c in ("dx_ref", "f_ref"):
+            if not np.isfinite(est[c]).any() and np.isfinite(partner[c]).any():
+                refs[c] = (partner, partner_trial)
     with plt.rc_context(STYLE):
-        fig, a1 = plt.subplots(figsize=(7, 3.5))
-        a1.plot(est["t"], est["dx_hat"] * 1e3, lw=0.8, color="C0", label="Δx_tip (self-sensed)")
-        a1.set_xlabel("time t [s]")
-        a1.set_ylabel("tip displacement Δx_tip [mm]", color="C0")
-        a2 = a1.twinx()
-        a2.plot(est["t"], est["f_hat"] * 1e3, lw=0.8, color="C3", label="f_tip (self-sensed)")
-        a2.set_ylabel("tip force f_tip [mN]", color="C3")
-        a2.grid(False)
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        for ax, hat, ref, scale, lab, unit, col in ((a1, "dx_hat", "dx_ref", 1e3, "tip displacement Δx_tip", "mm", "C0"),
+                                                     (a2, "f_hat", "f_ref", 1e3, "tip force f_tip", "mN", "C3")):
+            src, who = refs[ref]
+            if np.isfinite(src[ref]).any():
+                rlab = "reference" + (f" (paired trial {who}, same object and drive)" if who != trial else "")
+                ax.plot(src["t"], src[ref] * scale, color="k", lw=0.8, alpha=0.6, label=rlab)
+                ax.plot(est["t"], est[hat] * scale, lw=0.9, color=col, label="self-sensed")
+            else:
+                ax.plot(est["t"], est[hat] * scale, lw=0.9, color=col,
+                        label=f"self-sensed (no {'laser' if ref == 'dx_ref' else 'load-cell'} reference in this trial)")
+            ax.set_ylabel(f"{lab} [{unit}]")
+            _legend_above(ax, ncol=2)
+        a2.set_xlabel("time t [s]")
+        fig.tight_layout()
         _save(fig, out_dir, "fig37_force_displacement")
+    have = [c for c in ("dx_ref", "f_ref") if np.isfinite(refs[c][0][c]).any()]
+    note = ("References: " + ", ".join({"dx_ref": "laser (displacement)", "f_ref": "load cell (force)"}[c]
+                                       + (f" from trial {refs[c][1]}" if refs[c][1] != trial else "") for c in have)
+            + "." if have else "No reference recorded for this trial.")
     return caption("fig37_force_displacement",
-                   f"Trial {trial}: force stays near zero until the tips touch the object, then rises with the voltage.")
+                   f"Trial {trial}: force stays near zero until the tips touch the object, then rises with the "
+                   f"voltage. {note}")
 
 
 def fig_mismatch(est: pd.DataFrame, free_est: pd.DataFrame, out_dir: Path, trial: str, free_trial: str) -> str:
@@ -162,7 +272,8 @@ def fig_mismatch(est: pd.DataFrame, free_est: pd.DataFrame, out_dir: Path, trial
         ax.plot(t, (f - f0) * 1e3, lw=0.8, label=f"minus free-tip estimate ({free_trial})")
         ax.set_xlabel("time t [s]")
         ax.set_ylabel("tip force f_tip [mN]")
-        ax.legend(loc="best")
+        _legend_above(ax)
+        fig.tight_layout()
         _save(fig, out_dir, "fig39_mismatch_subtraction")
     return caption("fig39_mismatch_subtraction",
                    f"Trial {trial}: subtracting the force the model reports on a free tip under the same input "

@@ -1,54 +1,370 @@
-"""A self-contained, deterministic HTML report of one dataset's results (figures embedded as base64 PNG)."""
+"""A self-contained, deterministic HTML report of one dataset's results (figures embedded as base64 PNG).
+
+Written for the reviewer who reads it without the code: where the numbers come from (provenance: configuration,
+package version, git commit, dataset content hash and date), every coefficient with its unit, the H(q) model and
+the trials it was calibrated on, Table 3 of the thesis *A force and displacement self-sensing method for a MRI
+compatible tweezer end effector* (``000_18d138f03f1777c3.txt``), the figures with captions in words, and the
+sim-to-real gap diagnostic explained in sentences. No raw Markdown or JSON reaches the page: the project's Markdown
+tables are rendered (:func:`markdown_to_html`) and JSON documents are turned into tables and sentences.
+"""
 from __future__ import annotations
 
 import base64
 import html
 import json
+import re
 from pathlib import Path
+from typing import Any, Mapping
+
+import pandas as pd
+
+from .units import COEFFICIENTS, coef_unit
+
+__all__ = ["build_report", "markdown_to_html", "GAP_FIGURES"]
+
+_SEEDS = {
+    "thesis": "<i>A force and displacement self-sensing method for a MRI compatible tweezer end effector</i> "
+              "(thesis, 000_18d138f03f1777c3.txt)",
+    "paper": "T. McPherson and J. Ueda, <i>A Force and Displacement Self-Sensing Piezoelectric MRI-Compatible "
+             "Tweezer End Effector with an On Site Calibration Procedure</i> (001_972cacfaa08ad91a.txt)",
+    "ri": "<i>Modeling of piezoelectric actuators based on a new rate-independent hysteresis model</i> "
+          "(002_7d89b7147aad52e4.txt)",
+}
+
+#: gap diagnostic figure stem -> caption in words
+GAP_FIGURES = {
+    "budget_regimes": "Error budget of the gap diagnostic: held-out mean absolute error of the nominal model in "
+                      "% of range, split by operating regime (input level, branch of the loop, first loading or "
+                      "later, holds, contact state, elapsed time of the trial), for "
+                      "displacement (left) and force (right); dashed line: overall error, dotted line: noise floor "
+                      "(the change of the error under another noise realisation).",
+    "shrink": "How far each confirmed effect shrinks the held-out error: error of the nominal model (before) and "
+              "after refitting with each confirmed effect on the calibration trials, evaluated on the validation "
+              "trials, with 90 % block-bootstrap intervals. With no confirmed effect only the 'before' bars are "
+              "shown.",
+    "residual_vs_voltage": "Residual of the nominal model against the actuator voltage on the validation trials, "
+                           "coloured by the branch of the hysteresis loop (rising or falling voltage): a systematic "
+                           "pattern here is structure the model does not capture (e.g. an asymmetric loop).",
+}
+
+_INLINE = [
+    (re.compile(r"`([^`]+)`"), r"<code>\1</code>"),
+    (re.compile(r"\*\*([^*]+)\*\*"), r"<b>\1</b>"),
+    (re.compile(r"(?<![*\w])\*([^*\s][^*]*)\*(?![*\w])"), r"<i>\1</i>"),
+]
 
 
+def _inline(text: str) -> str:
+    """Escape, then render inline code, bold and italics of the project's Markdown."""
+    out = html.escape(text, quote=False)
+    for pat, rep in _INLINE:
+        out = pat.sub(rep, out)
+    return out
 
-def _md_table_to_html(md: str) -> str:
-    """Render the simple pipe tables this project writes (header, separator, rows) and '###' titles."""
-    out, rows = [], []
+
+def markdown_to_html(md: str, heading_level: int = 3) -> str:
+    """Render the Markdown this project writes: headings of any level (shown at ``heading_level`` or below), pipe
+    tables, bullet lists, paragraphs, inline code / bold / italics. Everything else is escaped text."""
+    out: list[str] = []
+    rows: list[list[str]] = []
+    items: list[str] = []
+    para: list[str] = []
 
     def flush():
         if rows:
-            head, body = rows[0], rows[2:] if len(rows) > 1 else []
-            out.append("<table><thead><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in head) + "</tr></thead><tbody>")
-            for r in body:
-                out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
+            head, body = rows[0], [r for r in rows[1:] if not all(re.fullmatch(r":?-{2,}:?", c) for c in r)]
+            out.append("<table><thead><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head)
+                       + "</tr></thead><tbody>")
+            out.extend("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in body)
             out.append("</tbody></table>")
             rows.clear()
+        if items:
+            out.append("<ul>" + "".join(f"<li>{_inline(i)}</li>" for i in items) + "</ul>")
+            items.clear()
+        if para:
+            out.append(f"<p>{_inline(' '.join(para))}</p>")
+            para.clear()
 
     for line in md.splitlines():
         s = line.strip()
         if s.startswith("|"):
+            if items or para:
+                flush()
             rows.append([c.strip() for c in s.strip("|").split("|")])
             continue
-        flush()
-        if s.startswith("###"):
-            out.append(f"<h3>{html.escape(s.lstrip('#').strip())}</h3>")
-        elif s:
-            out.append(f"<p>{html.escape(s)}</p>")
+        if rows:
+            flush()
+        m = re.match(r"^(#{1,6})\s+(.*)$", s)
+        if m:
+            flush()
+            level = min(6, heading_level + len(m.group(1)) - 1)
+            out.append(f"<h{level}>{_inline(m.group(2).rstrip('#').strip())}</h{level}>")
+        elif re.match(r"^[-*]\s+", s):
+            if para:
+                flush()
+            items.append(re.sub(r"^[-*]\s+", "", s))
+        elif not s:
+            flush()
+        else:
+            if items:
+                flush()
+            para.append(s)
     flush()
     return "\n".join(out)
 
 
-def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str:
+def _img(png: Path, alt: str) -> str:
+    b64 = base64.b64encode(png.read_bytes()).decode("ascii")
+    return f"<img alt='{html.escape(alt)}' src='data:image/png;base64,{b64}'>"
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v) if v else "(none)"
+    if v is None:
+        return "(not set)"
+    return str(v)
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    out = []
+    for k in d:
+        v = d[k]
+        if isinstance(v, Mapping) and v:
+            out += _flatten(v, f"{prefix}{k}.")
+        else:
+            out.append((f"{prefix}{k}", v))
+    return out
+
+
+def _kv_table(rows: list[tuple[str, Any]], head=("setting", "value")) -> str:
+    return ("<table><thead><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr></thead><tbody>"
+            + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td></tr>" for k, v in rows)
+            + "</tbody></table>")
+
+
+def _provenance(prov: Mapping[str, Any] | None, config: Mapping[str, Any] | None) -> list[str]:
+    if not prov and not config:
+        return []
+    parts = ["<h2>Provenance</h2>"]
+    if prov:
+        labels = [("selfsense_version", "selfsense version"), ("git_commit", "git commit of the code"),
+                  ("dataset", "dataset"), ("dataset_sha256", "dataset content hash (SHA-256 of rig.yaml, trials.csv "
+                                                           "and every log)"),
+                  ("n_files", "raw files hashed"), ("data_date", "raw data last modified (UTC)"),
+                  ("python", "Python"), ("snakemake", "Snakemake")]
+        parts.append("<table class='prov'><tbody>" + "".join(
+            f"<tr><th>{html.escape(lab)}</th><td><code>{html.escape(_fmt(prov[k]))}</code></td></tr>"
+            for k, lab in labels if k in prov) + "</tbody></table>")
+    if config:
+        parts.append("<details><summary>Configuration of this run (packaged defaults with the run's overrides)"
+                     "</summary>" + _kv_table(_flatten(config)) + "</details>")
+    return parts
+
+
+def _model_section(results_dir: Path) -> list[str]:
+    model = results_dir / "model" / "sensing.json"
+    if not model.exists():
+        return []
+    d = json.loads(model.read_text())
+    cfg = d.get("config", {})
+    rep = d.get("fit_report", {}).get("hysteresis", {})
+    trials = rep.get("trials") or ([rep["trial"]] if rep.get("trial") else [])
+    kind = {"modified_pi": "Kuhnen's modified Prandtl-Ishlinskii operator with creep (thesis eqs. 28-43, "
+                           "identified as a QP, thesis App. A)",
+            "ri": f"the one-sided rate-independent (RI) model of {_SEEDS['ri']} with a creep bank, fitted by "
+                  "least squares jointly on all free-tip calibration trials"}.get(str(rep.get("h_model")),
+                                                                                   html.escape(str(rep.get("h_model"))))
+    mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
+            "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
+    ntr = "trial" if len(trials) == 1 else "trials"
+    on = rep.get("trial")
+    fit = (f"fit error RMS {rep.get('rms_pct', float('nan')):.3f} % and max {rep.get('max_pct', float('nan')):.3f} % "
+           f"of the H(q) range ({rep.get('rms_v', float('nan')):.3g} V RMS)"
+           + (f" on trial <code>{html.escape(str(on))}</code>" if len(trials) > 1 and on else ""))
+    parts = ["<h2>Calibrated model</h2>",
+             f"<p>H(q): {kind}; calibrated on {ntr} "
+             + ", ".join(f"<code>{html.escape(str(t))}</code>" for t in trials)
+             + f" ({mode}); {fit}.</p>"]
+    cal = d.get("calibration_trials") or []
+    if cal:
+        parts.append("<p>Sensing coefficients regressed on the calibration trials "
+                     + ", ".join(f"<code>{html.escape(str(t))}</code>" for t in cal)
+                     + " (thesis eq. (52): dx_tip = A1 Q + A2 V_p, f_tip = B21 Q + B22 V_p, with the total charge Q "
+                       "[C] and the piezo voltage V_p = V - H(q) [V]; B21 = A3 / n_A, B22 = -C_p A3 in the thesis' "
+                       "approximation).</p>")
+    meaning = {"A1": "tip displacement per total charge", "A2": "tip displacement per piezo voltage",
+               "A3": "tip force per actuator charge (thesis eq. 52)", "B21": "tip force per total charge",
+               "B22": "tip force per piezo voltage", "h_slope": "slope of the free-tip H(q) target (1 / (n_A C_p))"}
+    rows = []
+    for k, v in d.get("coef", {}).items():
+        if isinstance(v, dict):
+            for kk, vv in v.items():
+                rows.append((f"{k}.{kk}", vv, coef_unit(kk), "augmentation term of the gap library"))
+        else:
+            rows.append((k, v, coef_unit(k), meaning.get(k, "")))
+    if "h_slope" in d:
+        rows.append(("h_slope", d["h_slope"], COEFFICIENTS["h_slope"], meaning["h_slope"]))
+    parts.append("<table><thead><tr><th>coefficient</th><th>value</th><th>unit</th><th>meaning</th></tr></thead>"
+                 "<tbody>" + "".join(f"<tr><td>{html.escape(k)}</td><td>{float(v):.6g}</td><td>{html.escape(u)}</td>"
+                                     f"<td>{html.escape(m)}</td></tr>" for k, v, u, m in rows) + "</tbody></table>")
+    rng = d.get("ranges", {})
+    if rng.get("dx") and rng.get("f"):
+        parts.append(f"<p>Physical ranges used for limiting (thesis sec. 5.2), from the calibration references: "
+                     f"displacement {rng['dx'][0] * 1e3:.3g} to {rng['dx'][1] * 1e3:.3g} mm, force "
+                     f"{rng['f'][0] * 1e3:.3g} to {rng['f'][1] * 1e3:.3g} mN.</p>")
+    return parts
+
+
+def _selection_section(results_dir: Path) -> list[str]:
+    """The H-model selection table (results/<d>/model/h_selection.csv) when the calibration wrote one."""
+    p = results_dir / "model" / "h_selection.csv"
+    if not p.exists():
+        return []
+    df = pd.read_csv(p)
+    if df.empty:
+        return []
+    sel_col = next((c for c in df.columns if c.lower() in ("selected", "is_selected")), None)
+    head = "".join(f"<th>{html.escape(str(c).replace('_', ' '))}</th>" for c in df.columns)
+    body = []
+    for _, r in df.iterrows():
+        chosen = sel_col is not None and str(r[sel_col]).strip().lower() in ("true", "1", "yes")
+        cells = "".join(f"<td>{html.escape(_fmt(v) if not isinstance(v, float) else f'{v:.4g}')}</td>"
+                        for v in r.to_list())
+        body.append(f"<tr class='{'selected' if chosen else ''}'>{cells}</tr>")
+    chosen_txt = ""
+    if sel_col is not None:
+        sel = df[df[sel_col].astype(str).str.strip().str.lower().isin(["true", "1", "yes"])]
+        if len(sel):
+            chosen_txt = (" The selected model (highlighted) is "
+                          + html.escape(", ".join(str(v) for v in sel.iloc[0].to_list()[:2])) + ".")
+    return ["<h2>H(q) model selection</h2>",
+            "<p>Candidate H(q) models and regularisations compared by cross-validation over the calibration trials "
+            "(RMS error per fold and mean, in the units of the file's columns) against the linear baseline."
+            + chosen_txt + "</p>",
+            f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"]
+
+
+def _pct(x: Any) -> str:
+    return f"{x:.2f} %" if isinstance(x, (int, float)) else "n/a"
+
+
+def _gap_section(gap: Path, results_dir: Path) -> list[str]:
+    parts = ["<h2>Sim-to-real gap diagnostic</h2>"]
+    v = gap / "verdict.json"
+    vd: dict = {}
+    if v.exists():
+        try:
+            vd = json.loads(v.read_text())
+        except json.JSONDecodeError:
+            parts.append("<p>The verdict file could not be read.</p>")
+    if vd:
+        est = {"sensing": "the modified PI estimator", "sensing_ri": "the RI + creep estimator",
+               "fast": "the fast linear stand-in"}.get(str(vd.get("estimator")), str(vd.get("estimator")))
+        eb, ea = vd.get("error_before", {}), vd.get("error_after_all", {})
+        effects = vd.get("effects") or []
+        if effects:
+            verdict = ("Confirmed effect(s): " + "; ".join(html.escape(str(e)) for e in effects) + ". "
+                       + html.escape(str(vd.get("message", ""))) + ".")
+        else:
+            verdict = ("No unmodelled effect was confirmed: what remains is the noise floor and the mismatch of the "
+                       "nominal model itself.")
+        parts.append(f"<p><b>Verdict.</b> {verdict} "
+                     + ("The residual still shows structure the library does not explain"
+                        + (f" (at {html.escape(str(vd.get('unexplained_where')))})" if vd.get("unexplained_where") else "")
+                        + "." if vd.get("unexplained") else "No unexplained structure remains in the residual.")
+                     + "</p>")
+        t3 = results_dir / "tables" / "table3.csv"
+        rec = ""
+        if t3.exists():
+            t = pd.read_csv(t3).set_index("measurement")["percent_of_range"]
+            rec = (f" Table 3 reports {_pct(t.get('displacement'))} and {_pct(t.get('force'))} for the same "
+                   "validation trials: Table 3 averages each trial's error in % of that trial's own reference "
+                   "range after limiting and the sliding DC offset (thesis sec. 5.2), while the diagnostic scores "
+                   "the estimator without that post-processing, pools the samples of all validation trials (also "
+                   "counting blocked-tip trials as zero displacement and free-tip trials as zero force) and divides "
+                   "by each measurement's range over all trials, so the two differ by construction.")
+        parts.append(f"<p><b>Held-out error of {est}</b> (mean |error| over the validation trials in % of each "
+                     f"measurement's range over all trials): displacement {_pct(eb.get('displacement'))}, force "
+                     f"{_pct(eb.get('force'))} before; {_pct(ea.get('displacement'))} and {_pct(ea.get('force'))} "
+                     f"after the confirmed effects (refit on the calibration trials).{rec}</p>")
+        parts += _why_not(vd)
+        if vd.get("suggestions"):
+            parts.append("<p><b>What to change</b>:</p><ul>" + "".join(
+                f"<li><code>{html.escape(n)}</code>: {_inline(s.get('model_change', ''))} To confirm it: "
+                f"{_inline(s.get('confirming_experiment', ''))}</li>" for n, s in vd["suggestions"].items()) + "</ul>")
+        if vd.get("protocol_proposal"):
+            parts.append("<p><b>Next acquisition.</b></p>" + markdown_to_html(str(vd["protocol_proposal"]), 4))
+        if vd.get("estimator_fallback"):
+            parts.append(f"<p><b>Note</b>: {html.escape(str(vd['estimator_fallback']))}.</p>")
+    for md in sorted(gap.glob("*.md")):
+        parts.append(markdown_to_html(md.read_text(), 3))
+    for png in sorted(gap.glob("*.png")):
+        cap = GAP_FIGURES.get(png.stem, png.stem.replace("_", " "))
+        parts.append(f"<figure>{_img(png, cap)}<figcaption>{html.escape(cap)}</figcaption></figure>")
+    return parts
+
+
+def _why_not(vd: Mapping[str, Any]) -> list[str]:
+    """One sentence per screened candidate that was not confirmed: why, from the verdict's numbers."""
+    confirmed = set(vd.get("effects") or [])
+    rel = vd.get("confirm_rel_gain") or {}
+    thr = vd.get("thresholds") or {}
+    member_thr = thr.get("confirm_rel_member") or {}
+    screened = [s for s in (vd.get("screened") or []) if s.get("effect") not in confirmed]
+    if not screened:
+        return []
+    items = []
+    for s in screened[:8]:
+        n = str(s["effect"])
+        g = rel.get(n)
+        need = member_thr.get(n, thr.get("confirm_rel"))
+        gain = s.get("cv_gain")
+        if not isinstance(g, (int, float)):
+            why = "it was not refitted (its screening gain was below the screening threshold)."
+        elif g <= 0:
+            why = (f"refitting the model with it on the calibration trials made the held-out error worse, not "
+                   f"better (by {abs(g) * 100:.1f} % of its value: the augmentation overfits the calibration trials "
+                   f"or has the wrong form for this data).")
+        elif isinstance(need, (int, float)) and g < need:
+            why = (f"refitting with it reduced the held-out error by {g * 100:.1f} %, less than the "
+                   f"{need * 100:.1f} % that effect-free simulations reach by chance (null-calibrated threshold).")
+        else:
+            why = f"it reduced the held-out error by {g * 100:.1f} % but another effect explained the same part."
+        screen = (f" Residual screening gain {gain:.3f}." if isinstance(gain, (int, float)) else "")
+        items.append(f"<li><code>{html.escape(n)}</code> was not confirmed: {why}{screen}</li>")
+    more = len(screened) - 8
+    return (["<p><b>Why the candidates were not confirmed</b> (an effect is confirmed only when refitting with it "
+             "on the calibration trials reduces the held-out error by more than effect-free data do):</p>",
+             "<ul>" + "".join(items) + "</ul>"]
+            + ([f"<p>{more} further candidate(s) with smaller screening gains are listed in attribution.csv.</p>"]
+               if more > 0 else []))
+
+
+_STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em;line-height:1.4}"
+          "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;font-size:90%;"
+          "text-align:left}table.prov th{background:#f4f4f4}tr.selected{background:#e6f4e6;font-weight:bold}"
+          "figure{margin:1em 0}figcaption{font-size:90%;color:#333}img{max-width:100%}"
+          "details{margin:0.5em 0}summary{cursor:pointer}code{background:#f6f6f6;padding:0 2px}")
+
+
+def build_report(dataset_dir: Path, results_dir: Path, failed: list[str], config: Mapping[str, Any] | None = None,
+                 provenance: Mapping[str, Any] | None = None) -> str:
     name = dataset_dir.name
     parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>selfsense report: {html.escape(name)}</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}"
-        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;font-size:90%}"
-        "figure{margin:1em 0}figcaption{font-size:90%;color:#333}img{max-width:100%}</style></head><body>",
+        f"<style>{_STYLE}</style></head><body>",
         f"<h1>Self-sensing report: dataset <code>{html.escape(name)}</code></h1>",
-        "<p>Method: thesis <i>A force and displacement self-sensing method for a MRI compatible tweezer end effector</i> "
-        "(000_18d138f03f1777c3.txt), eqs. (52)-(57), with the on-site calibration of 001_972cacfaa08ad91a.txt. "
+        f"<p>Method: {_SEEDS['thesis']}, eqs. (52)-(57), with the on-site calibration of {_SEEDS['paper']}. "
         "Errors are mean absolute errors and, per trial, in % of that trial's reference range; Table 3 averages the "
-        "validation trials.</p>",
+        "validation trials, which no fit has seen.</p>",
     ]
+    parts += _provenance(provenance, config)
     vpath = results_dir / "validation.json"
     warnings: list[str] = []
     if vpath.exists():
@@ -67,59 +383,24 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str]) -> str
     for md in ("table3.md", "modes.md", "per_trial.md"):
         p = tables / md
         if p.exists():
-            parts.append(_md_table_to_html(p.read_text()))
-    model = results_dir / "model" / "sensing.json"
-    if model.exists():
-        d = json.loads(model.read_text())
-        rep = d.get("fit_report", {}).get("hysteresis", {})
-        coef = {k: v for k, v in d.get("coef", {}).items() if not isinstance(v, dict)}
-        parts.append("<h2>Calibrated model</h2>")
-        parts.append(
-            f"<p>H(q): {html.escape(str(rep.get('h_model')))} calibrated on trial <code>{html.escape(str(rep.get('trial')))}</code> "
-            f"({html.escape(d['config']['h_mode'])} mode), fit error RMS {rep.get('rms_pct', float('nan')):.3f} % / "
-            f"max {rep.get('max_pct', float('nan')):.3f} % of output range, solver {html.escape(str(rep.get('solver')))}.</p>")
-        parts.append("<table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in coef) + "</tr><tr>"
-                     + "".join(f"<td>{v:.6g}</td>" for v in coef.values()) + "</tr></table>")
+            parts.append(markdown_to_html(p.read_text(), 3))
+    parts += _model_section(results_dir)
+    parts += _selection_section(results_dir)
     figs = results_dir / "figures"
     caps_path = figs / "captions.json"
     if caps_path.exists():
         caps = json.loads(caps_path.read_text())
         parts.append("<h2>Figures</h2>")
-        for stem in sorted(caps):
+        from .figures import FIGURES
+
+        order = {k: i for i, k in enumerate(FIGURES)}
+        for stem in sorted(caps, key=lambda k: (order.get(k, len(order)), k)):
             png = figs / f"{stem}.png"
-            if not png.exists():
-                continue
-            b64 = base64.b64encode(png.read_bytes()).decode("ascii")
-            parts.append(f"<figure><img alt='{html.escape(stem)}' src='data:image/png;base64,{b64}'>"
-                         f"<figcaption><b>{html.escape(stem)}</b>: {html.escape(caps[stem])}</figcaption></figure>")
+            if png.exists():
+                parts.append(f"<figure>{_img(png, caps[stem])}<figcaption>{html.escape(caps[stem])}</figcaption>"
+                             "</figure>")
     gap = results_dir / "gap"
     if gap.exists():
-        parts.append("<h2>Sim-to-real gap diagnostic</h2>")
-        v = gap / "verdict.json"
-        if v.exists():
-            txt = v.read_text()
-            try:
-                vd = json.loads(txt)
-            except json.JSONDecodeError:
-                vd = {}
-            if vd:
-                eb, ea = vd.get("score_before"), vd.get("score_after_all")
-                items = [f"<li><b>Verdict</b>: {html.escape(str(vd.get('message', '')))}</li>"]
-                if isinstance(eb, (int, float)) and isinstance(ea, (int, float)):
-                    items.append(f"<li><b>Held-out error</b> (mean of displacement and force, % of range): "
-                                 f"{eb:.2f} before, {ea:.2f} after the confirmed effects (refit on calibration "
-                                 f"trials)</li>")
-                items.append(f"<li><b>Unexplained structure</b>: {'yes' if vd.get('unexplained') else 'no'}</li>")
-                if vd.get("protocol_proposal"):
-                    items.append("<li><b>Next acquisition</b>: <pre>" + html.escape(vd["protocol_proposal"])
-                                 + "</pre></li>")
-                parts.append("<ul>" + "".join(items) + "</ul>")
-            parts.append(f"<details><summary>verdict.json</summary><pre>{html.escape(txt)}</pre></details>")
-        for md in sorted(gap.glob("*.md")):
-            parts.append(_md_table_to_html(md.read_text()))
-        for png in sorted(gap.glob("*.png")):
-            b64 = base64.b64encode(png.read_bytes()).decode("ascii")
-            parts.append(f"<figure><img alt='{html.escape(png.stem)}' src='data:image/png;base64,{b64}'>"
-                         f"<figcaption>{html.escape(png.stem)}</figcaption></figure>")
+        parts += _gap_section(gap, results_dir)
     parts.append("</body></html>\n")
     return "\n".join(parts)
