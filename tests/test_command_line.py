@@ -73,8 +73,9 @@ def test_unknown_command_and_user_error_are_one_line(tmp_path, capsys):
     assert cli.main(["nosuchcommand"]) == 2
     assert "unknown command 'nosuchcommand'" in capsys.readouterr().err
     # an estimate on a missing model file: one line, exit 2, no traceback
-    rc = cli.main(["estimate", "--model", str(tmp_path / "none.json"), "--dataset", str(tmp_path),
-                   "--log", str(tmp_path / "x.parquet"), "--out", str(tmp_path / "o.parquet")])
+    (tmp_path / "ds").mkdir()
+    rc = cli.main(["estimate", "--model", str(tmp_path / "none.json"), "--dataset", str(tmp_path / "ds"),
+                   "--log", str(tmp_path / "x.parquet"), "--out", str(tmp_path / "out" / "o.parquet")])
     err = capsys.readouterr().err
     assert rc == 2
     assert "Traceback" not in err and err.count("\n") == 1 and err.startswith("selfsense estimate: error: ")
