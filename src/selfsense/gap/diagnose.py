@@ -10,15 +10,19 @@ dx = 0 on blocked tips; force = f_ref on force-reference trials and f = 0 on fre
 from __future__ import annotations
 
 import json
+import logging
+import sys
+import time
 from dataclasses import dataclass, field
 from importlib import resources
-import sys
 from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
 
 from . import stats
+
+_log = logging.getLogger(__name__)
 from .data import Case
 from .library import FAMILIES, LIBRARY, Effect, effect
 from .model import make_estimator
@@ -301,7 +305,10 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     ev = Evaluator(case, estimator, **est_kw)
     ev.bar = bar = tqdm(total=1, desc="gap diagnose: base fit", unit="refit", disable=None if progress is None else not progress,
                         file=sys.stderr) if progress is not False else None
+    t0 = time.perf_counter()
     base = ev(frozenset())
+    _log.info("gap diagnose: nominal model (%s) fitted and scored in %.1f s; held-out error %.2f %% of range",
+              estimator, time.perf_counter() - t0, base.score)
     screen = Screen(case, base, ev.rows, LIBRARY)
 
     # --- which: screening gains, forward selection, block-bootstrap selection frequencies
@@ -312,6 +319,7 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     # ranks; every selection below is decided by refit on calibration + held-out error)
     cands = [n for n in sorted(gains, key=lambda n: -gains[n]) if gains[n] > thr["screen_member"]][:max_candidates]
     blocks = ev.blocks()
+    _log.info("gap diagnose: %d candidate effects from the residual screening: %s", len(cands), ", ".join(cands))
     if bar is not None:  # upper bound: greedy path over the candidates, then Shapley subsets of <= max_effects
         bar.total = bar.n + sum(max(len(cands) - k, 0) for k in range(max_effects)) + 2 ** min(max_effects, len(cands))
         bar.set_description("gap diagnose: structural search")
@@ -377,6 +385,8 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
     chosen = [(n, gains[n]) for n in cands]
 
     # --- attribution: exact Shapley over confirmed effects (2^k refits), per measurement and overall
+    _log.info("gap diagnose: structural search and %d bootstrap replicates done after %d refits (%.1f s); "
+              "confirmed: %s", n_boot, ev.n_fits, time.perf_counter() - t0, ", ".join(confirmed) or "none")
     if bar is not None:
         bar.total = bar.n + 2 ** len(confirmed) + len(confirmed)
         bar.set_description("gap diagnose: attribution")
@@ -438,6 +448,7 @@ def diagnose(case: Case, estimator: str = "fast", thresholds: dict | None = None
         "protocol_proposal": proposal(excitation),
     }
     figs = {"base": base, "final": final, "ev": ev}
+    _log.info("gap diagnose: done, %d refits in %.1f s", ev.n_fits, time.perf_counter() - t0)
     if bar is not None:
         bar.total = bar.n
         bar.close()
