@@ -212,3 +212,63 @@ def test_init_writes_a_template_that_names_the_contract(tmp_path, capsys):
     assert cli.main(["init", str(d)]) == 2
     assert "already exist" in capsys.readouterr().err
     assert cli.main(["init", str(d), "--force"]) == 0
+
+
+def _bad_copy(tmp_path: Path, name: str) -> Path:
+    d = tmp_path / "data" / "raw" / name
+    shutil.copytree(ROOT / "data" / "raw" / "sample", d)
+    (d / "rig.yaml").write_text((d / "rig.yaml").read_text().replace("dataset: sample", f"dataset: {name}"))
+    return d
+
+
+def test_run_bad_dataset_no_traceback(tmp_path):
+    """Bad input found before Snakemake (trials.csv) and by the validate rule (a log): one line per problem, exit 2,
+    no traceback anywhere in the output."""
+    d = _bad_copy(tmp_path, "badtrials")
+    t = d / "trials.csv"
+    t.write_text(t.read_text().replace(",calibration,free,", ",calib,free,", 1))
+    env = dict(os.environ, MPLBACKEND="Agg")
+    proc = subprocess.run([sys.executable, "-m", "selfsense", "run", "--config", "datasets=[badtrials]"],
+                          cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stdout + proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        f"selfsense run: error: {d}/trials.csv: column 'role', row 1: expected 'calibration' or 'validation' "
+        "(did you mean 'calibration'?), found 'calib'"]
+    import pandas as pd
+
+    d = _bad_copy(tmp_path, "badlog")
+    log = d / "cal_free.parquet"
+    df = pd.read_parquet(log)
+    df["u_cmd"] = df["u_cmd"] * 1000.0  # mV logged as V
+    df.to_parquet(log, index=False)
+    proc = subprocess.run([sys.executable, "-m", "selfsense", "run", "--config", "datasets=[badlog]"],
+                          cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2, out[-3000:]
+    assert "Traceback" not in out
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("selfsense run: error: badlog/logs/validate.log: cal_free.parquet: column 'u_cmd'")
+    assert "mV logged as V?" in last
+
+
+@pytest.mark.parametrize("argv, code", [
+    (["validate", "{d}"], 1),
+    (["gap", "diagnose", "{d}", "--out", "{tmp}/gapout", "--no-figures"], 2),
+    (["estimate", "--model", "{tmp}/m.json", "--dataset", "{d}", "--log", "{d}/cal_free.parquet", "--out",
+      "{tmp}/o.parquet"], 2),
+    (["export", "{tmp}/results", "{d}", "--out", "{tmp}/exp"], 2),
+    (["init", "{d}"], 2),
+])
+def test_subcommands_on_a_bad_dataset_print_no_traceback(tmp_path, argv, code):
+    d = _bad_copy(tmp_path, "bad")
+    (d / "rig.yaml").write_text((d / "rig.yaml").read_text().replace("shunt_resistance_ohm: 1000.0",
+                                                                     "shunt_resistance_ohm: 0.0"))
+    args = [a.format(d=d, tmp=tmp_path) for a in argv]
+    proc = subprocess.run([sys.executable, "-m", "selfsense", *args], cwd=tmp_path, capture_output=True, text=True,
+                          env=dict(os.environ, MPLBACKEND="Agg"), timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == code, out[-2000:]
+    assert "Traceback" not in out and 'File "' not in out
+    if code == 2:
+        assert all(ln.startswith(f"selfsense {args[0]}") for ln in proc.stderr.strip().splitlines()), proc.stderr

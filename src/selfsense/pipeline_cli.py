@@ -168,6 +168,20 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"selfsense run: error: {exc}", file=sys.stderr)
         return 2
+    # rig.yaml and trials.csv of every dataset before Snakemake builds its DAG from them (else a bad trials.csv
+    # surfaces as Snakemake's InputFunctionException with a traceback); the logs are checked by the validate rule
+    from selfsense.io import check_rig, check_trials
+
+    bad = []
+    for d in datasets:
+        bad += [f"{raw / d}/{p}" for p in check_rig(raw / d)[1] + check_trials(raw / d)[1]]
+    if bad:
+        for line in bad:
+            print(f"selfsense run: error: {' '.join(line.split())}", file=sys.stderr)
+        return 2
+    import time
+
+    started = time.time()
     try:
         # one `selfsense run` per directory: a second one would see the first one's outputs as "incomplete" and
         # Snakemake would advise --rerun-incomplete, which is wrong while the first run is alive
@@ -178,7 +192,10 @@ def main(argv: list[str] | None = None) -> int:
               "(do not use --rerun-incomplete or --unlock while it runs)", file=sys.stderr)
         return 2
     if rc != 0:
-        return rc
+        errors = _rule_errors(workdir / str(cfg.get("results_dir", "results")), datasets, started)
+        for line in errors:
+            print(f"selfsense run: error: {line}", file=sys.stderr)
+        return 2 if errors else rc  # 2: bad input found by a rule (its message above), else Snakemake's code
     if any(a in ("-n", "--dry-run", "--dryrun") for a in argv):
         return 0
     results = workdir / str(cfg.get("results_dir", "results"))
@@ -188,6 +205,35 @@ def main(argv: list[str] | None = None) -> int:
             shown = report.relative_to(cwd) if report.is_relative_to(cwd) else report
             print(f"report: {shown}")
     return 0
+
+
+def _rule_errors(results: Path, datasets: list[str], since: float, limit: int = 20) -> list[str]:
+    """The ``ERROR:`` lines that failed rules of this run wrote to their logs (``selfsense.stages.logged``), so the
+    cause ends the output as one line per problem, after Snakemake's own report."""
+    out: list[str] = []
+    for d in datasets:
+        for log in sorted((results / d / "logs").rglob("*.log")):
+            try:
+                if log.stat().st_mtime < since:
+                    continue
+                lines = log.read_text(errors="replace").splitlines()
+            except OSError:
+                continue
+            for i, ln in enumerate(lines):
+                if ln.startswith("ERROR: "):
+                    msg = ln[len("ERROR: "):].strip()
+                    # a ContractError lists its problems on the following lines
+                    more = []
+                    for x in lines[i + 1:i + 40]:
+                        if x.startswith("Traceback"):
+                            break
+                        if x.strip():
+                            more.append(x.strip())
+                    rel = log.relative_to(results)
+                    out += [f"{rel}: {' '.join(x.split())}" for x in ([msg] + more if "contract problem" in msg
+                                                                      else [msg])]
+                    break
+    return out[:limit]
 
 
 if __name__ == "__main__":  # pragma: no cover

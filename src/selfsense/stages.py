@@ -285,7 +285,9 @@ def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Pat
 
 
 class logged:
-    """Context manager for rule scripts: stdout/stderr go to the rule's log; an exception is logged, then re-raised."""
+    """Context manager for rule scripts: stdout/stderr go to the rule's log; an exception is logged with its
+    traceback. Bad input (ValueError incl. ContractError, OSError, KeyError) then ends the script with exit code 1
+    and its message on stderr (no traceback on the terminal); anything else is re-raised."""
 
     def __init__(self, log_path: str | Path):
         self.log_path = Path(log_path)
@@ -312,6 +314,9 @@ class logged:
         self._fh.close()
         if exc is not None:
             print(f"ERROR: {exc}", file=sys.stderr)
+            if isinstance(exc, (ValueError, OSError, KeyError)):  # bad input: the message, not a traceback
+                print(f"(traceback in {self.log_path})", file=sys.stderr)
+                raise SystemExit(1) from None
         return False
 
 
