@@ -133,8 +133,7 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
     abbreviation), the caller's directory is the working directory, and the packaged Snakefile is used."""
     calls = []
     monkeypatch.setattr(pipeline_cli.subprocess, "call", lambda cmd, cwd=None: calls.append((cmd, cwd)) or 0)
-    raw = tmp_path / "data" / "raw" / "mine"
-    raw.mkdir(parents=True)
+    _bad_copy(tmp_path, "mine")  # a valid copy of the sample dataset (rig.yaml and trials.csv are checked first)
     (tmp_path / "mine.yaml").write_text("datasets: [mine]\n")
     monkeypatch.chdir(tmp_path)
     assert cli.main(["run", "--configfile", "mine.yaml", "--config", "on_bad_trial=skip", "--dry-run"]) == 0
