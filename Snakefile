@@ -1,7 +1,8 @@
 # selfsense: raw DAQ logs -> charge -> H(q) -> A-coefficients -> estimates -> Table 3, figures, report, gap.
 # Run: snakemake --cores 2            (all datasets in config.yaml)
 #      snakemake --cores 2 --configfile other.yaml
-# All science lives in src/selfsense; scripts in workflow/scripts are thin.
+#      snakemake --report report.zip   (Snakemake's report: every table and figure with its caption)
+# Also usable as a Snakemake module from another workflow (docs/scale_out.md). All science lives in src/selfsense.
 import os
 
 from snakemake.utils import min_version, validate
@@ -20,19 +21,16 @@ check_config(config, workflow.configfiles)
 validate(config, "workflow/schemas/config.schema.yaml")
 
 
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/pipeline.smk"
+include: "workflow/rules/gap.smk"
 include: "workflow/rules/ri.smk"
-HAVE_GAP_RULES = os.path.exists(os.path.join(workflow.basedir, "workflow/rules/gap.smk"))
-
-
-if HAVE_GAP_RULES:
-
-    include: "workflow/rules/gap.smk"
-
 
 
 rule all:
-    input:
-        expand(RESULTS + "/{dataset}/report.html", dataset=DATASETS),
     default_target: True
+    input:
+        expand(res("{dataset}", "report.html"), dataset=DATASETS),

@@ -156,7 +156,7 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
 def test_workflow_ships_with_the_package():
     d = pipeline_cli.workflow_dir()
     for rel in ("Snakefile", "config.yaml", "workflow/rules/pipeline.smk", "workflow/schemas/config.schema.yaml",
-                "workflow/scripts/report.py"):
+                "workflow/scripts/figures.py", "profiles/default/config.yaml"):
         assert (d / rel).is_file(), rel
     assert (d / "Snakefile").resolve() == (ROOT / "Snakefile").resolve(), "the shipped workflow must be the repo's"
 
@@ -174,7 +174,8 @@ def test_wheel_runs_outside_a_checkout(tmp_path):
     zipfile.ZipFile(whl).extractall(site)
     names = set(zipfile.ZipFile(whl).namelist())
     for rel in ("Snakefile", "config.yaml", "workflow/rules/pipeline.smk", "workflow/rules/common.smk",
-                "workflow/schemas/config.schema.yaml", "workflow/scripts/estimate.py"):
+                "workflow/schemas/config.schema.yaml", "workflow/scripts/figures.py",
+                "workflow/report/figure.rst", "profiles/default/config.yaml"):
         assert f"selfsense/_workflow/{rel}" in names, rel
     user = tmp_path / "user"
     shutil.copytree(ROOT / "data" / "raw" / "sample", user / "data" / "raw" / "sample")

@@ -9,7 +9,12 @@ can also be used from a notebook or the ``selfsense`` command without Snakemake.
 """
 from __future__ import annotations
 
+import io
 import json
+import logging
+import sys
+import threading
+import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -198,6 +203,7 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
     from selfsense.sensing.estimator import _eval_h, h_target
 
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     meta = _meta(dataset_dir)
     est = load_estimator(dataset_dir, model_json)
     free_trial = est.fit_report_["hysteresis"]["trial"]
@@ -271,6 +277,14 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
     return caps
 
 
+def export_matlab(dataset_dir: str | Path, trial: str, signals: str | Path, internals: str | Path,
+                  model_json: str | Path, out_mat: str | Path, out_csv: str | Path) -> None:
+    """One trial's results as MATLAB ``.mat`` and CSV (selfsense.report.export.export_trial)."""
+    from selfsense.report.export import export_trial
+
+    export_trial(dataset_dir, trial, signals, internals, model_json, out_mat=out_mat, out_csv=out_csv)
+
+
 def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Path, failed: list[str] | None = None,
            config: Mapping[str, Any] | None = None) -> str:
     """One self-contained HTML report: provenance (``config`` of the run, package version, git commit, dataset hash
@@ -284,36 +298,108 @@ def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Pat
     return str(out_html)
 
 
+_LOCAL = threading.local()
+_INSTALL_LOCK = threading.Lock()
+
+
+class _ThreadStream(io.TextIOBase):
+    """``sys.stdout``/``sys.stderr`` stand-in that writes to the log file of the job running in the current thread
+    (rules with ``run:`` execute in threads of the Snakemake process) and to the original stream otherwise."""
+
+    def __init__(self, fallback):
+        self._fallback = fallback
+
+    def _target(self):
+        return getattr(_LOCAL, "fh", None) or self._fallback
+
+    def write(self, s):
+        return self._target().write(s)
+
+    def flush(self):
+        self._target().flush()
+
+    def isatty(self):
+        return False
+
+
+class _ThreadLogHandler(logging.Handler):
+    """Logging records of ``selfsense`` (and Python warnings) go to the current thread's job log, if any."""
+
+    def emit(self, record):
+        fh = getattr(_LOCAL, "fh", None)
+        if fh is not None:
+            fh.write(self.format(record) + "\n")
+
+
+def _install_routing() -> None:
+    with _INSTALL_LOCK:
+        if not isinstance(sys.stdout, _ThreadStream):
+            sys.stdout = _ThreadStream(sys.stdout)
+        if not isinstance(sys.stderr, _ThreadStream):
+            sys.stderr = _ThreadStream(sys.stderr)
+        for name in ("selfsense", "py.warnings"):
+            lg = logging.getLogger(name)
+            if not any(isinstance(h, _ThreadLogHandler) for h in lg.handlers):
+                h = _ThreadLogHandler()
+                h.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+                lg.addHandler(h)
+                lg.setLevel(logging.INFO)
+        logging.captureWarnings(True)
+
+
+def _process_age_s() -> float:
+    """Seconds since this process started (interpreter start-up, imports, Snakemake's script preamble)."""
+    try:
+        import psutil
+
+        return max(0.0, time.time() - psutil.Process().create_time())
+    except Exception:  # pragma: no cover - psutil comes with Snakemake
+        return float("nan")
+
+
 class logged:
-    """Context manager for rule scripts: stdout/stderr go to the rule's log; an exception is logged with its
-    traceback. Bad input (ValueError incl. ContractError, OSError, KeyError) then ends the script with exit code 1
-    and its message on stderr (no traceback on the terminal); anything else is re-raised."""
+    """Context manager around one pipeline job: its stdout/stderr and ``selfsense`` log records go to the rule's
+    log; an exception is logged with its traceback. Thread-safe, so it serves both rule kinds:
+
+    * ``run:`` rules execute in a thread of the Snakemake process (no interpreter start-up, imports paid once);
+      an exception is re-raised for Snakemake to report;
+    * ``script:`` rules run in a process of their own: bad input (ValueError incl. ContractError, OSError,
+      KeyError) ends the script with exit code 1 and its message on stderr (no traceback on the terminal);
+      anything else is re-raised.
+
+    On exit it appends one line ``timing: startup_s=<s> compute_s=<s>`` to the log (``benchmarks/pipeline_speed.py``
+    reads it): start-up is the age of the process when the job's code starts (interpreter, imports, Snakemake's
+    script preamble; 0 for ``run:`` rules, which share the Snakemake process), compute is the time inside.
+    """
 
     def __init__(self, log_path: str | Path):
         self.log_path = Path(log_path)
 
     def __enter__(self):
-        import logging
-        import sys
-
+        self._in_thread = threading.current_thread() is not threading.main_thread()
+        self._startup = 0.0 if self._in_thread else _process_age_s()
+        self._t0 = time.perf_counter()
+        _install_routing()
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        self._saved = getattr(_LOCAL, "fh", None)
         self._fh = open(self.log_path, "w")
-        self._saved = sys.stdout, sys.stderr
-        sys.stdout = sys.stderr = self._fh
-        logging.basicConfig(stream=self._fh, level=logging.INFO, format="%(name)s: %(message)s", force=True)
+        _LOCAL.fh = self._fh
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        import sys
         import traceback
 
+        compute = time.perf_counter() - self._t0
         if exc is not None:
             self._fh.write(f"ERROR: {exc}\n")
             traceback.print_exception(exc_type, exc, tb, file=self._fh)
-        sys.stdout, sys.stderr = self._saved
+        self._fh.write(f"timing: startup_s={self._startup:.3f} compute_s={compute:.3f}\n")
+        _LOCAL.fh = self._saved
         self._fh.close()
         if exc is not None:
             print(f"ERROR: {exc}", file=sys.stderr)
+            if self._in_thread:
+                return False
             if isinstance(exc, (ValueError, OSError, KeyError)):  # bad input: the message, not a traceback
                 print(f"(traceback in {self.log_path})", file=sys.stderr)
                 raise SystemExit(1) from None
@@ -323,3 +409,43 @@ class logged:
 def by_trial(paths) -> dict[str, str]:
     """Map a list of ``.../<trial>.parquet`` paths to {trial: path}."""
     return {Path(p).stem: str(p) for p in paths}
+
+
+#: the pipeline rules that run inside the Snakemake process (``run:``), by rule name: (input, output, params,
+#: wildcards) -> stage call. Rules with plotting (figures, gap diagnostic) and the heavier mode comparison keep
+#: ``script:`` and a process of their own.
+_JOBS = {
+    "validate_dataset": lambda i, o, p, w: validate(p.dataset_dir, o[0], p.on_bad_trial),
+    "ingest": lambda i, o, p, w: ingest(p.dataset_dir, w.trial, o[0]),
+    "calibrate_hysteresis": lambda i, o, p, w: calibrate(p.dataset_dir, by_trial(i.signals), p.config, o[0]),
+    "regress_coefficients": lambda i, o, p, w: regress(p.dataset_dir, by_trial(i.signals), i.hysteresis, o[0]),
+    "estimate": lambda i, o, p, w: estimate(p.dataset_dir, i.signals, i.model, o.estimate, full_out=o.internals),
+    "score": lambda i, o, p, w: score(p.dataset_dir, by_trial(i.estimates), p.out_dir),
+    "report": lambda i, o, p, w: print(report(p.dataset_dir, p.results_dir, o[0], config=p.run_config)),
+    "export_matlab": lambda i, o, p, w: export_matlab(p.dataset_dir, w.trial, i.signals, i.internals, i.model,
+                                                      o.mat, o.csv),
+}
+
+
+_BLAS_LIMITED = False
+
+
+def _one_blas_thread() -> None:
+    """Jobs of the Snakemake process run side by side in threads (one core each, ``threads: 1``); a multi-threaded
+    BLAS in each of them would oversubscribe the cores (measured: ``Q.T @ Q`` of a 60,000 x 46 regressor matrix,
+    thesis eq. 65, takes 0.011 s on one OpenBLAS thread and 0.66 s on two while the other core is busy).
+    Script rules get the same limit from Snakemake's ``OPENBLAS_NUM_THREADS``."""
+    global _BLAS_LIMITED
+    if not _BLAS_LIMITED:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+        _BLAS_LIMITED = True
+
+
+def run_job(name: str, input, output, params, wildcards, log) -> None:
+    """Body of the workflow's ``run:`` rules (workflow/rules/pipeline.smk): the stage of rule ``name`` inside
+    :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster)."""
+    _one_blas_thread()
+    with logged(log[0]):
+        _JOBS[name](input, output, params, wildcards)

@@ -1,29 +1,59 @@
-# Shared helpers: dataset and trial lists (read through selfsense.io so a bad trials.csv fails with a clear message).
+# Shared settings and functions of the workflow (functions live here only, as snakemake --lint asks).
+# Dataset and trial lists are read through selfsense.io, so a bad trials.csv fails with a clear message.
+import json
 import os
-import sys
 
 from selfsense import io as sio
+from selfsense import stages
 
-PYTHON = sys.executable  # the interpreter running Snakemake (has selfsense installed)
 RAW = config.get("raw_dir", "data/raw")
 RESULTS = config.get("results_dir", "results")
 DATASETS = list(config["datasets"])
 GAP_ENABLED = bool(config.get("gap", {}).get("enabled", True))
+GAP_BENCH = {
+    "n": 40,
+    "seed": 1,
+    "tier": "fast",
+    "estimator": "sensing_ri",
+    **config.get("gap", {}).get("benchmark", {}),
+}
+GAP_ESTIMATOR = config.get("gap", {}).get("estimator") or (
+    "sensing_ri" if config.get("calibration", {}).get("h_model") == "ri" else "sensing"
+)
+#: settings the H(q) calibration and the estimator read (params of the rules that fit a model)
+SENSING_CONFIG = {k: config.get(k, {}) for k in ("calibration", "estimation")}
 
 _TRIALS = {}
 
 
+wildcard_constraints:
+    dataset="[A-Za-z0-9_.-]+",
+    trial="[A-Za-z0-9_-]+",
+
+
+def res(*parts):
+    """A path under the results folder (config results_dir): res("{dataset}", "signals", "{trial}.parquet")."""
+    return os.path.join(RESULTS, *parts)
+
+
+def raw(*parts):
+    """A path under the raw-data folder (config raw_dir); never written to."""
+    return os.path.join(RAW, *parts)
+
+
+def dataset_dir(wildcards):
+    return raw(wildcards.dataset)
+
+
 def trials_table(dataset):
     if dataset not in _TRIALS:
-        _TRIALS[dataset] = sio.load_trials(os.path.join(RAW, dataset)).set_index("trial")
+        _TRIALS[dataset] = sio.load_trials(raw(dataset)).set_index("trial")
     return _TRIALS[dataset]
 
 
 def all_trials(dataset):
     """Trials that passed validation (checkpoint validate_dataset; with on_bad_trial=skip a bad validation
     trial is left out and listed as failed in the report)."""
-    import json
-
     path = checkpoints.validate_dataset.get(dataset=dataset).output[0]
     with open(path) as fh:
         return list(json.load(fh)["trials"])
@@ -34,27 +64,53 @@ def calibration_trials(dataset):
     return sorted(t.index[t["role"] == "calibration"])
 
 
+def raw_inputs(wildcards):
+    """rig.yaml, trials.csv and every trial log of a dataset."""
+    files = [raw(wildcards.dataset, "rig.yaml"), raw(wildcards.dataset, "trials.csv")]
+    return files + [
+        raw(wildcards.dataset, str(f)) for f in trials_table(wildcards.dataset)["file"]
+    ]
+
+
 def trial_log(wildcards):
-    return os.path.join(RAW, wildcards.dataset, str(trials_table(wildcards.dataset).loc[wildcards.trial, "file"]))
+    return raw(
+        wildcards.dataset,
+        str(trials_table(wildcards.dataset).loc[wildcards.trial, "file"]),
+    )
 
 
-def signals_of(trials_fn):
+def per_trial(kind, trials_fn):
+    """Input function: ``res(<dataset>, kind, <trial>.parquet)`` for the trials ``trials_fn(dataset)``."""
+
     def _f(wildcards):
-        return {t: f"{RESULTS}/{wildcards.dataset}/signals/{t}.parquet" for t in trials_fn(wildcards.dataset)}
+        return [
+            res(wildcards.dataset, kind, f"{t}.parquet")
+            for t in trials_fn(wildcards.dataset)
+        ]
 
     return _f
 
 
-def estimates_of(wildcards):
-    return {t: f"{RESULTS}/{wildcards.dataset}/estimates/{t}.parquet" for t in all_trials(wildcards.dataset)}
+def report_inputs(wildcards):
+    d = wildcards.dataset
+    inputs = {"table3": res(d, "tables", "table3.md"), "figures": res(d, "figures")}
+    if config.get("report", {}).get("compare_modes", True):
+        inputs["modes"] = res(d, "tables", "modes.md")
+    if GAP_ENABLED:
+        inputs["gap"] = res(d, "gap")
+    return inputs
 
 
-wildcard_constraints:
-    dataset="[A-Za-z0-9_.-]+",
-    trial="[A-Za-z0-9_-]+",
+def matlab_files(wildcards):
+    return [
+        res(d, "export", f"{t}.{ext}")
+        for d in DATASETS
+        for t in all_trials(d)
+        for ext in ("mat", "csv")
+    ]
 
 
-def slac_data_dir():
+def slac_data_dir(wildcards):
     """The SLAC one-sided magnet data for the optional target ri_compare_slac (not bundled: config slac_data_dir)."""
     d = config.get("slac_data_dir")
     if not d:
@@ -63,3 +119,15 @@ def slac_data_dir():
             "(e.g. --config slac_data_dir=PATH)"
         )
     return d
+
+
+def ri_main(args, log):
+    """The RI command line (selfsense.hysteresis.ri_cli) inside the Snakemake process, output to the rule's log."""
+    from selfsense.hysteresis.ri_cli import main
+
+    with stages.logged(log):
+        rc = main(list(args))
+    if rc:
+        raise RuntimeError(
+            f"selfsense ri {' '.join(args)} exited with {rc} (see {log})"
+        )

@@ -1,207 +1,229 @@
-# The main DAG (ARCHITECTURE.md): validate -> ingest -> calibrate H(q) -> regress A -> estimate -> score -> figures -> report
+# The main DAG (docs/method.md): validate -> ingest -> calibrate H(q) -> regress A -> estimate -> score -> figures
+# -> report. Light rules use `run:` and execute inside the Snakemake process (no interpreter, NumPy, numba or
+# cvxpy start-up per job, docs/benchmarks.md); on a cluster every job, per trial included, is still a job of its
+# own. Heavy rules with plotting use `script:` and run in a process of their own.
 
 
 checkpoint validate_dataset:
     input:
-        rig=RAW + "/{dataset}/rig.yaml",
-        trials=RAW + "/{dataset}/trials.csv",
-        logs=lambda w: [os.path.join(RAW, w.dataset, str(f)) for f in trials_table(w.dataset)["file"]],
+        raw_inputs,
     output:
-        RESULTS + "/{dataset}/validation.json",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
-        on_bad_trial=config.get("on_bad_trial", "fail"),
+        res("{dataset}", "validation.json"),
     log:
-        RESULTS + "/{dataset}/logs/validate.log",
+        res("{dataset}", "logs", "validate.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/validate.tsv"
+        res("{dataset}", "benchmarks", "validate.tsv")
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
-    script:
-        "../scripts/validate.py"
+    params:
+        dataset_dir=dataset_dir,
+        on_bad_trial=config.get("on_bad_trial", "fail"),
+    run:
+        stages.run_job("validate_dataset", input, output, params, wildcards, log)
 
 
 rule ingest:
     input:
         log=trial_log,
-        validation=RESULTS + "/{dataset}/validation.json",
+        validation=res("{dataset}", "validation.json"),
     output:
-        RESULTS + "/{dataset}/signals/{trial}.parquet",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        res("{dataset}", "signals", "{trial}.parquet"),
     log:
-        RESULTS + "/{dataset}/logs/ingest/{trial}.log",
+        res("{dataset}", "logs", "ingest", "{trial}.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/ingest/{trial}.tsv"
+        res("{dataset}", "benchmarks", "ingest", "{trial}.tsv")
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    script:
-        "../scripts/ingest.py"
+    params:
+        dataset_dir=dataset_dir,
+    run:
+        stages.run_job("ingest", input, output, params, wildcards, log)
 
 
 rule calibrate_hysteresis:
     input:
-        signals=lambda w: expand(RESULTS + "/{{dataset}}/signals/{trial}.parquet", trial=calibration_trials(w.dataset)),
+        signals=per_trial("signals", calibration_trials),
     output:
-        RESULTS + "/{dataset}/model/hysteresis.json",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
-        config=lambda w: {k: config.get(k, {}) for k in ("calibration", "estimation")},
+        res("{dataset}", "model", "hysteresis.json"),
     log:
-        RESULTS + "/{dataset}/logs/calibrate_hysteresis.log",
+        res("{dataset}", "logs", "calibrate_hysteresis.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/calibrate_hysteresis.tsv"
+        res("{dataset}", "benchmarks", "calibrate_hysteresis.tsv")
     threads: 1
     resources:
         mem_mb=4000,
         runtime=30,
-    script:
-        "../scripts/calibrate.py"
+    params:
+        dataset_dir=dataset_dir,
+        config=SENSING_CONFIG,
+    run:
+        stages.run_job("calibrate_hysteresis", input, output, params, wildcards, log)
 
 
 rule regress_coefficients:
     input:
-        signals=lambda w: expand(RESULTS + "/{{dataset}}/signals/{trial}.parquet", trial=calibration_trials(w.dataset)),
-        hysteresis=RESULTS + "/{dataset}/model/hysteresis.json",
+        signals=per_trial("signals", calibration_trials),
+        hysteresis=res("{dataset}", "model", "hysteresis.json"),
     output:
-        RESULTS + "/{dataset}/model/sensing.json",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        res("{dataset}", "model", "sensing.json"),
     log:
-        RESULTS + "/{dataset}/logs/regress_coefficients.log",
+        res("{dataset}", "logs", "regress_coefficients.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/regress_coefficients.tsv"
+        res("{dataset}", "benchmarks", "regress_coefficients.tsv")
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    script:
-        "../scripts/regress.py"
+    params:
+        dataset_dir=dataset_dir,
+    run:
+        stages.run_job("regress_coefficients", input, output, params, wildcards, log)
 
 
 rule estimate:
     input:
-        signals=RESULTS + "/{dataset}/signals/{trial}.parquet",
-        model=RESULTS + "/{dataset}/model/sensing.json",
+        signals=res("{dataset}", "signals", "{trial}.parquet"),
+        model=res("{dataset}", "model", "sensing.json"),
     output:
-        estimate=RESULTS + "/{dataset}/estimates/{trial}.parquet",
-        internals=RESULTS + "/{dataset}/internals/{trial}.parquet",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        estimate=res("{dataset}", "estimates", "{trial}.parquet"),
+        internals=res("{dataset}", "internals", "{trial}.parquet"),
     log:
-        RESULTS + "/{dataset}/logs/estimate/{trial}.log",
+        res("{dataset}", "logs", "estimate", "{trial}.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/estimate/{trial}.tsv"
+        res("{dataset}", "benchmarks", "estimate", "{trial}.tsv")
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    script:
-        "../scripts/estimate.py"
+    params:
+        dataset_dir=dataset_dir,
+    run:
+        stages.run_job("estimate", input, output, params, wildcards, log)
 
 
 rule score:
     input:
-        estimates=lambda w: expand(RESULTS + "/{{dataset}}/estimates/{trial}.parquet", trial=all_trials(w.dataset)),
+        estimates=per_trial("estimates", all_trials),
     output:
-        table3=RESULTS + "/{dataset}/tables/table3.csv",
-        per_trial=RESULTS + "/{dataset}/tables/per_trial.csv",
-        table3_md=RESULTS + "/{dataset}/tables/table3.md",
-        per_trial_md=RESULTS + "/{dataset}/tables/per_trial.md",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        table3=report(
+            res("{dataset}", "tables", "table3.csv"),
+            caption="../report/table3.rst",
+            category="Accuracy",
+            labels={"dataset": "{dataset}", "table": "Table 3"},
+        ),
+        per_trial=report(
+            res("{dataset}", "tables", "per_trial.csv"),
+            caption="../report/per_trial.rst",
+            category="Accuracy",
+            labels={"dataset": "{dataset}", "table": "per trial"},
+        ),
+        table3_md=res("{dataset}", "tables", "table3.md"),
+        per_trial_md=res("{dataset}", "tables", "per_trial.md"),
     log:
-        RESULTS + "/{dataset}/logs/score.log",
+        res("{dataset}", "logs", "score.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/score.tsv"
+        res("{dataset}", "benchmarks", "score.tsv")
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    script:
-        "../scripts/score.py"
+    params:
+        dataset_dir=dataset_dir,
+        out_dir=lambda w: res(w.dataset, "tables"),
+    run:
+        stages.run_job("score", input, output, params, wildcards, log)
 
 
 rule compare_modes:
     input:
-        signals=lambda w: expand(RESULTS + "/{{dataset}}/signals/{trial}.parquet", trial=all_trials(w.dataset)),
+        signals=per_trial("signals", all_trials),
     output:
-        csv=RESULTS + "/{dataset}/tables/modes.csv",
-        md=RESULTS + "/{dataset}/tables/modes.md",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
-        config=lambda w: {k: config.get(k, {}) for k in ("calibration", "estimation")},
+        csv=report(
+            res("{dataset}", "tables", "modes.csv"),
+            caption="../report/modes.rst",
+            category="Accuracy",
+            labels={
+                "dataset": "{dataset}",
+                "table": "H(q) models and calibration modes",
+            },
+        ),
+        md=res("{dataset}", "tables", "modes.md"),
     log:
-        RESULTS + "/{dataset}/logs/compare_modes.log",
+        res("{dataset}", "logs", "compare_modes.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/compare_modes.tsv"
+        res("{dataset}", "benchmarks", "compare_modes.tsv")
+    conda:
+        "../envs/selfsense.yaml"
     threads: 1
     resources:
         mem_mb=4000,
         runtime=30,
+    params:
+        dataset_dir=dataset_dir,
+        config=SENSING_CONFIG,
     script:
         "../scripts/compare_modes.py"
 
 
 rule figures:
     input:
-        signals=lambda w: expand(RESULTS + "/{{dataset}}/signals/{trial}.parquet", trial=all_trials(w.dataset)),
-        internals=lambda w: expand(RESULTS + "/{{dataset}}/internals/{trial}.parquet", trial=all_trials(w.dataset)),
-        model=RESULTS + "/{dataset}/model/sensing.json",
-        per_trial=RESULTS + "/{dataset}/tables/per_trial.csv",
+        signals=per_trial("signals", all_trials),
+        internals=per_trial("internals", all_trials),
+        model=res("{dataset}", "model", "sensing.json"),
+        per_trial=res("{dataset}", "tables", "per_trial.csv"),
     output:
-        captions=RESULTS + "/{dataset}/figures/captions.json",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
-        out_dir=lambda w: f"{RESULTS}/{w.dataset}/figures",
+        # every figure of the dataset (PNG and PDF) and captions.json
+        figures=report(
+            directory(res("{dataset}", "figures")),
+            patterns=["{name}.png"],
+            caption="../report/figure.rst",
+            category="Figures",
+            labels={"dataset": "{dataset}", "figure": "{name}"},
+        ),
     log:
-        RESULTS + "/{dataset}/logs/figures.log",
+        res("{dataset}", "logs", "figures.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/figures.tsv"
+        res("{dataset}", "benchmarks", "figures.tsv")
+    conda:
+        "../envs/selfsense.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        dataset_dir=dataset_dir,
     script:
         "../scripts/figures.py"
-
-
-def report_inputs(wildcards):
-    d = wildcards.dataset
-    inputs = {
-        "table3": f"{RESULTS}/{d}/tables/table3.md",
-        "captions": f"{RESULTS}/{d}/figures/captions.json",
-    }
-    if config.get("report", {}).get("compare_modes", True):
-        inputs["modes"] = f"{RESULTS}/{d}/tables/modes.md"
-    if GAP_ENABLED and HAVE_GAP_RULES:
-        inputs["gap"] = f"{RESULTS}/{d}/gap/verdict.json"
-    return inputs
 
 
 rule report:
     input:
         unpack(report_inputs),
     output:
-        RESULTS + "/{dataset}/report.html",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
-        results_dir=lambda w: f"{RESULTS}/{w.dataset}",
-        run_config=lambda w: dict(config),  # shown in the report's provenance block
+        report(
+            res("{dataset}", "report.html"),
+            caption="../report/html_report.rst",
+            category="Report",
+            labels={"dataset": "{dataset}", "file": "report.html"},
+        ),
     log:
-        RESULTS + "/{dataset}/logs/report.log",
+        res("{dataset}", "logs", "report.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/report.tsv"
+        res("{dataset}", "benchmarks", "report.tsv")
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
-    script:
-        "../scripts/report.py"
+    params:
+        dataset_dir=dataset_dir,
+        results_dir=lambda w: res(w.dataset),
+        run_config=lambda w: dict(config),  # shown in the report's provenance block
+    run:
+        stages.run_job("report", input, output, params, wildcards, log)
 
 
 # MATLAB / spreadsheet users: `selfsense run matlab` (or `snakemake --cores 2 matlab`) writes every trial's results
@@ -210,26 +232,26 @@ rule report:
 # not in the default run. `selfsense export RESULTS_DIR DATASET_DIR --out DIR` does the same outside Snakemake.
 rule export_matlab:
     input:
-        signals=RESULTS + "/{dataset}/signals/{trial}.parquet",
-        internals=RESULTS + "/{dataset}/internals/{trial}.parquet",
-        model=RESULTS + "/{dataset}/model/sensing.json",
+        signals=res("{dataset}", "signals", "{trial}.parquet"),
+        internals=res("{dataset}", "internals", "{trial}.parquet"),
+        model=res("{dataset}", "model", "sensing.json"),
     output:
-        mat=RESULTS + "/{dataset}/export/{trial}.mat",
-        csv=RESULTS + "/{dataset}/export/{trial}.csv",
-    params:
-        dataset_dir=lambda w: os.path.join(RAW, w.dataset),
+        mat=res("{dataset}", "export", "{trial}.mat"),
+        csv=res("{dataset}", "export", "{trial}.csv"),
     log:
-        RESULTS + "/{dataset}/logs/export_matlab/{trial}.log",
+        res("{dataset}", "logs", "export_matlab", "{trial}.log"),
     benchmark:
-        RESULTS + "/{dataset}/benchmarks/export_matlab/{trial}.tsv"
+        res("{dataset}", "benchmarks", "export_matlab", "{trial}.tsv")
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
-    script:
-        "../scripts/export_matlab.py"
+    params:
+        dataset_dir=dataset_dir,
+    run:
+        stages.run_job("export_matlab", input, output, params, wildcards, log)
 
 
 rule matlab:
     input:
-        lambda w: [f"{RESULTS}/{d}/export/{t}.{ext}" for d in DATASETS for t in all_trials(d) for ext in ("mat", "csv")],
+        matlab_files,

@@ -1,5 +1,0 @@
-from selfsense import stages
-
-with stages.logged(snakemake.log[0]):  # noqa: F821
-    stages.calibrate(snakemake.params.dataset_dir, stages.by_trial(snakemake.input.signals),  # noqa: F821
-                     snakemake.params.config, snakemake.output[0])  # noqa: F821
