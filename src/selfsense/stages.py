@@ -362,10 +362,12 @@ class logged:
     log; an exception is logged with its traceback. Thread-safe, so it serves both rule kinds:
 
     * ``run:`` rules execute in a thread of the Snakemake process (no interpreter start-up, imports paid once);
-      an exception is re-raised for Snakemake to report;
-    * ``script:`` rules run in a process of their own: bad input (ValueError incl. ContractError, OSError,
-      KeyError) ends the script with exit code 1 and its message on stderr (no traceback on the terminal);
-      anything else is re-raised.
+    * ``script:`` rules run in a process of their own.
+
+    An exception is written to the log with its traceback and its message to stderr (``ERROR: ...``, which
+    ``selfsense run`` repeats at the end). In a ``script:`` rule, bad input (ValueError incl. ContractError,
+    OSError, KeyError) then ends the script with exit code 1 (no traceback on the terminal); in a ``run:`` rule
+    and for anything else the exception is re-raised for Snakemake to report.
 
     On exit it appends one line ``timing: startup_s=<s> compute_s=<s>`` to the log (``benchmarks/pipeline_speed.py``
     reads it): start-up is the age of the process when the job's code starts (interpreter, imports, Snakemake's
@@ -398,7 +400,7 @@ class logged:
         self._fh.close()
         if exc is not None:
             print(f"ERROR: {exc}", file=sys.stderr)
-            if self._in_thread:
+            if self._in_thread:  # run: rule: Snakemake reports the job as failed, with the message
                 return False
             if isinstance(exc, (ValueError, OSError, KeyError)):  # bad input: the message, not a traceback
                 print(f"(traceback in {self.log_path})", file=sys.stderr)
@@ -447,5 +449,13 @@ def run_job(name: str, input, output, params, wildcards, log) -> None:
     """Body of the workflow's ``run:`` rules (workflow/rules/pipeline.smk): the stage of rule ``name`` inside
     :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster)."""
     _one_blas_thread()
-    with logged(log[0]):
-        _JOBS[name](input, output, params, wildcards)
+    try:
+        with logged(log[0]):
+            _JOBS[name](input, output, params, wildcards)
+    except (ValueError, OSError, KeyError) as exc:  # bad input: its message, the traceback stays in the log
+        raise BadInput(f"{type(exc).__name__}: {exc}") from None
+
+
+class BadInput(Exception):
+    """A ``run:`` job stopped on bad input; the message names file, field and expectation (full traceback in the
+    rule's log)."""
