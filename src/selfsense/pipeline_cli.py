@@ -15,8 +15,10 @@ Every option is handed to Snakemake unchanged (``snakemake --help`` lists them),
 
 Configuration is layered: the packaged defaults (``selfsense run --print-config``), then each ``--configfile`` in
 order (a partial file, e.g. only ``datasets: [mine]``, is enough), then ``--config key=value`` overrides.
-The last lines printed are the paths of the HTML reports, one per dataset. Exit code: Snakemake's, or 2 for a
-configuration that names a dataset folder that does not exist.
+The last lines printed are the paths of the HTML reports, one per dataset. Before Snakemake starts, the layered
+configuration and every dataset's rig.yaml and trials.csv are checked; bad input there, or found by a rule (e.g.
+a DAQ log that breaks the data contract), ends the output with one line per problem and exit code 2 (the rule's
+traceback stays in its log). Otherwise the exit code is Snakemake's.
 """
 from __future__ import annotations
 
