@@ -374,8 +374,11 @@ class logged:
     script preamble; 0 for ``run:`` rules, which share the Snakemake process), compute is the time inside.
     """
 
-    def __init__(self, log_path: str | Path):
+    def __init__(self, log_path: str | Path, exit_on_bad_input: bool = True):
         self.log_path = Path(log_path)
+        #: end a ``script:`` process with exit code 1 on bad input (no traceback); ``run:`` jobs, which run in the
+        #: Snakemake process, pass False and turn the re-raised exception into :class:`BadInput`
+        self.exit_on_bad_input = exit_on_bad_input
 
     def __enter__(self):
         self._in_thread = threading.current_thread() is not threading.main_thread()
@@ -402,7 +405,7 @@ class logged:
             print(f"ERROR: {exc}", file=sys.stderr)
             if self._in_thread:  # run: rule: Snakemake reports the job as failed, with the message
                 return False
-            if isinstance(exc, (ValueError, OSError, KeyError)):  # bad input: the message, not a traceback
+            if self.exit_on_bad_input and isinstance(exc, (ValueError, OSError, KeyError)):  # bad input: no traceback
                 print(f"(traceback in {self.log_path})", file=sys.stderr)
                 raise SystemExit(1) from None
         return False
@@ -450,7 +453,7 @@ def run_job(name: str, input, output, params, wildcards, log) -> None:
     :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster)."""
     _one_blas_thread()
     try:
-        with logged(log[0]):
+        with logged(log[0], exit_on_bad_input=False):
             _JOBS[name](input, output, params, wildcards)
     except (ValueError, OSError, KeyError) as exc:  # bad input: its message, the traceback stays in the log
         raise BadInput(f"{type(exc).__name__}: {exc}") from None
