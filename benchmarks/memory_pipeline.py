@@ -4,9 +4,12 @@
 
 Simulates a dataset with the virtual tweezer (``selfsense simulate``): three short calibration / validation
 trials and one long validation trial of ``--minutes`` at ``--rate``; runs the whole Snakefile on it (gap
-diagnostic and mode comparison included, ``--cores 2``) in a temporary folder; reads the peak resident set size
-of every job from Snakemake's ``benchmark:`` files (``max_rss``) and writes a table with the declared
-``mem_mb`` of each rule beside it. Target: every job below 2 GB. Not a test: it takes several minutes.
+diagnostic and mode comparison included, ``--cores 2``) in a temporary folder, and records the true peak resident
+set size of every job: a ``sitecustomize`` hook on the jobs' ``PYTHONPATH`` writes ``getrusage(RUSAGE_SELF)
+.ru_maxrss`` (the kernel's high-water mark) with the job's rule and wildcards when the job's Python exits.
+(Snakemake's own ``benchmark:`` ``max_rss`` only samples every 1-30 s and can miss a short peak; it is shown
+beside it.) Writes a table with the declared ``mem_mb`` of each rule. Target: every job below 2 GB. Not a test:
+it takes several minutes.
 """
 from __future__ import annotations
 
@@ -26,6 +29,30 @@ import yaml
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 TARGET_MB = 2000.0
+#: imported by every Python job of the run (PYTHONPATH): appends "rule<TAB>wildcards<TAB>peak kB" at exit
+HOOK = """
+import atexit, os, resource, sys
+
+
+def _selfsense_peak():
+    sm = getattr(sys.modules.get("__main__"), "snakemake", None)
+    if sm is None:
+        if "snakemake" in " ".join(sys.argv[:1] + sys.argv[1:2]) or getattr(sys.modules.get("__main__"), "__spec__", None) and "snakemake" in str(sys.modules["__main__"].__spec__.name):
+            with open(os.environ["SELFSENSE_PEAK_LOG"], "a") as fh:
+                fh.write(f"snakemake process (hosts the run: jobs)\\t\\t{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
+        return
+    try:
+        items = list(sm.wildcards.items())
+    except Exception:
+        items = []
+    wc = ",".join(f"{k}={v}" for k, v in items)
+    with open(os.environ["SELFSENSE_PEAK_LOG"], "a") as fh:
+        fh.write(f"{sm.rule}\\t{wc}\\t{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
+
+
+if os.environ.get("SELFSENSE_PEAK_LOG"):
+    atexit.register(_selfsense_peak)
+"""
 
 
 def scenario(minutes: float, rate: float) -> dict:
@@ -43,17 +70,21 @@ def scenario(minutes: float, rate: float) -> dict:
 
 
 def declared_mem_mb() -> dict[str, int]:
-    """rule -> resources.mem_mb, read from the rule files."""
+    """benchmark file stem (``validate``, ``ingest``, ...) -> resources.mem_mb of its rule, from the rule files."""
     out: dict[str, int] = {}
     for smk in sorted((ROOT / "workflow" / "rules").glob("*.smk")):
-        rule = None
-        for line in smk.read_text().splitlines():
-            m = re.match(r"^(?:rule|checkpoint)\s+(\w+):", line)
+        bench, mem = None, None
+        for line in smk.read_text().splitlines() + ["rule end:"]:
+            if re.match(r"^(?:rule|checkpoint)\s+\w+:", line):
+                if bench and mem:
+                    out[bench] = mem
+                bench, mem = None, None
+            m = re.search(r'/benchmarks/([\w.-]+?)(?:/|\.tsv)', line)
             if m:
-                rule = m.group(1)
+                bench = m.group(1)
             m = re.match(r"^\s+mem_mb=(\d+)", line)
-            if m and rule:
-                out[rule] = int(m.group(1))
+            if m:
+                mem = int(m.group(1))
     return out
 
 
@@ -89,24 +120,70 @@ def main(argv: list[str] | None = None) -> int:
         cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
         cfg.update(datasets=["long"], raw_dir=str(raw), results_dir=str(work / "results"))
         (work / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-        env = dict(os.environ, MPLBACKEND="Agg")
+        hook = work / "hook"
+        hook.mkdir(exist_ok=True)
+        (hook / "sitecustomize.py").write_text(HOOK)
+        peaks_log = work / "peaks.tsv"
+        peaks_log.unlink(missing_ok=True)
+        env = dict(os.environ, MPLBACKEND="Agg", SELFSENSE_PEAK_LOG=str(peaks_log),
+                   PYTHONPATH=os.pathsep.join([str(hook)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
         t0 = time.perf_counter()
         p = subprocess.run([sys.executable, "-m", "snakemake", "all", "--cores", "2", "--snakefile",
                             str(ROOT / "Snakefile"), "--directory", str(work), "--configfile",
                             str(work / "config.yaml")], capture_output=True, text=True, env=env)
         wall = time.perf_counter() - t0
-        rows = []
+        sampled = {}
         bdir = work / "results" / "long" / "benchmarks"
         for tsv in sorted(bdir.rglob("*.tsv")):
             rel = tsv.relative_to(bdir)
-            rule = rel.parts[0] if len(rel.parts) > 1 else rel.stem
-            job = str(rel.with_suffix(""))
             lines = tsv.read_text().splitlines()
             d = dict(zip(lines[0].split("\t"), lines[1].split("\t")))
-            rows.append((job, rule, float(d["s"]), float(d["max_rss"])))
+            sampled[str(rel.with_suffix(""))] = (float(d["s"]), d["max_rss"])
+        bench_of = {"validate_dataset": "validate"}  # rule -> benchmark file stem, where they differ
+        rows = []
+        for line in peaks_log.read_text().splitlines() if peaks_log.exists() else []:
+            rule, wc, kb = line.split("\t")
+            stem = bench_of.get(rule, rule)
+            trial = dict(kv.split("=", 1) for kv in wc.split(",") if kv).get("trial")
+            job = f"{stem}/{trial}" if trial else stem
+            if rule.startswith("snakemake process"):
+                job, stem = rule, ""
+            s_wall, smp = sampled.get(job, (float("nan"), "NA"))
+            rows.append((job, stem, s_wall, int(kb) / 1024.0, smp))
+        # `run:` rules execute in threads of the Snakemake process when run locally (one process per job on a
+        # cluster): re-run each such stage of the long trial in a process of its own, as a cluster job would
+        res = work / "results" / "long"
+        scratch = work / "rerun"
+        scratch.mkdir(exist_ok=True)
+        ds = raw / "long"
+        cal = {t: str(res / "signals" / f"{t}.parquet") for t in ("cal_free", "cal_blocked")}
+        allest = {t: str(res / "estimates" / f"{t}.parquet") for t in ("cal_free", "cal_blocked", "val_force", "val_long")}
+        sens = {k: cfg.get(k, {}) for k in ("calibration", "estimation")}
+        reruns = {
+            "validate": f"stages.validate({str(ds)!r}, {str(scratch / 'v.json')!r})",
+            "ingest/val_long": f"stages.ingest({str(ds)!r}, 'val_long', {str(scratch / 's.parquet')!r})",
+            "calibrate_hysteresis": f"stages.calibrate({str(ds)!r}, {cal!r}, {sens!r}, {str(scratch / 'h.json')!r})",
+            "regress_coefficients": f"stages.regress({str(ds)!r}, {cal!r}, {str(res / 'model' / 'hysteresis.json')!r}, "
+                                    f"{str(scratch / 'm.json')!r})",
+            "estimate/val_long": f"stages.estimate({str(ds)!r}, {str(res / 'signals' / 'val_long.parquet')!r}, "
+                                 f"{str(res / 'model' / 'sensing.json')!r}, {str(scratch / 'e.parquet')!r}, "
+                                 f"{str(scratch / 'i.parquet')!r})",
+            "score": f"stages.score({str(ds)!r}, {allest!r}, {str(scratch / 'tables')!r})",
+        }
+        renv = dict(env)
+        renv.pop("SELFSENSE_PEAK_LOG", None)
+        renv["ARROW_DEFAULT_MEMORY_POOL"] = "system"  # as in the workflow's jobs (workflow/rules/common.smk)
+        for job, call in reruns.items():
+            if p.returncode != 0:
+                break
+            rc, t_job, rss_job, tail = timed([sys.executable, "-c", f"from selfsense import stages; {call}"], env=renv)
+            stem = job.split("/")[0]
+            s_wall, smp = sampled.get(job, (float("nan"), "NA"))
+            rows = [r for r in rows if r[0] != job]
+            rows.append((job + ("" if rc == 0 else f" (exit {rc})"), stem, t_job, rss_job, smp))
         mem = declared_mem_mb()
         n_long = int(a.minutes * 60 * a.rate)
-        peak = max((r[3] for r in rows), default=float("nan"))
+        peak = max((r[3] for r in rows), default=float("inf"))
         ok = p.returncode == 0 and peak < TARGET_MB
         lines = [
             "# Peak memory per pipeline job on one long trial",
@@ -116,14 +193,18 @@ def main(argv: list[str] | None = None) -> int:
             f"Dataset: `selfsense simulate` (virtual tweezer), three 10 s trials and `val_long`, {a.minutes:g} min at "
             f"{a.rate:g} Hz = {n_long:,} samples; whole Snakefile with `--cores 2` (gap diagnostic and mode "
             f"comparison included). Snakemake exit code {p.returncode}, {wall:.0f} s wall.",
-            f"Peak RSS (`max_rss` of each job's `benchmark:` file) against the target of {TARGET_MB:.0f} MB per job: "
-            f"**{'met' if ok else 'NOT met'}** (largest {peak:.0f} MB).",
+            f"Peak RSS of each job (`ru_maxrss` of the job's Python at exit, through a `sitecustomize` hook) against "
+            f"the target of {TARGET_MB:.0f} MB per job: **{'met' if ok else 'NOT met'}** (largest {peak:.0f} MB). "
+            "Snakemake's sampled `max_rss` (every 1-30 s) is shown for comparison. The workflow's light rules use "
+            "`run:` and execute in threads of the Snakemake process when run locally (a process per job on a "
+            "cluster): those stages of the long trial were re-run each in a process of their own on the same "
+            "inputs, and the Snakemake process's own peak is listed too (it hosts up to `--cores` such jobs at once).",
             "",
-            "| job | rule | wall [s] | peak RSS [MB] | declared mem_mb |",
+            "| job | wall [s] | peak RSS [MB] | Snakemake max_rss (sampled) [MB] | declared mem_mb |",
             "|---|---|---|---|---|",
         ]
-        for job, rule, s, rss in sorted(rows, key=lambda r: -r[3]):
-            lines.append(f"| {job} | {rule} | {s:.1f} | {rss:.0f} | {mem.get(rule, '')} |")
+        for job, rule, s, rss, smp in sorted(rows, key=lambda r: -r[3]):
+            lines.append(f"| {job} | {s:.1f} | {rss:.0f} | {smp} | {mem.get(rule, '')} |")
         lines += ["", f"Simulating the dataset (not a pipeline job): {t_sim:.0f} s, peak RSS {rss_sim:.0f} MB.", ""]
         if p.returncode != 0:
             lines += ["Snakemake output (tail):", "```", (p.stdout + p.stderr)[-3000:], "```", ""]

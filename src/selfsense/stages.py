@@ -25,6 +25,8 @@ from selfsense import io as sio
 from selfsense.sensing import SelfSensingEstimator, SensingConfig
 from selfsense.signals import prepare_trial
 
+#: the columns of a signals file that SelfSensingEstimator.estimate and the scoring read
+_ESTIMATE_INPUTS = ["t", "V", "q", "u_cmd", "relay", "dx_ref", "f_ref"]
 SIGNAL_COLUMNS = ["t", "V", "q", "u_cmd", "relay", "dx_ref", "f_ref", "V_c", "V_s"]
 ESTIMATE_COLUMNS = ["t", "dx_hat", "f_hat", "dx_ref", "f_ref"]
 
@@ -40,7 +42,16 @@ def sensing_config(config: Mapping[str, Any]) -> SensingConfig:
     return SensingConfig.from_mapping(merged)
 
 
-def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = "fail") -> dict:
+#: the pipeline's sample budget per trial (config max_trial_samples): 10 min at 10 kHz, measured below 2 GB per job
+#: by benchmarks/memory_pipeline.py (benchmarks/MEMORY.md)
+MAX_TRIAL_SAMPLES = 6_000_000
+#: compare_modes evaluates four estimators per trial, two of them RI models (about 400 B per sample at the peak):
+#: longer validation trials are left out of that secondary table, with a note in it
+COMPARE_MAX_SAMPLES = 2_000_000
+
+
+def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = "fail",
+             max_trial_samples: int | None = MAX_TRIAL_SAMPLES) -> dict:
     """Check the whole dataset against DATA_FORMAT.md.
 
     Problems of ``rig.yaml`` / ``trials.csv`` or of a calibration trial's log always raise ``ContractError`` listing
@@ -50,7 +61,7 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
     """
     if on_bad_trial not in ("fail", "skip"):
         raise ValueError(f"on_bad_trial: expected 'fail' or 'skip', found {on_bad_trial!r}")
-    problems, warnings = sio.check_dataset(dataset_dir, pipeline=True)
+    problems, warnings = sio.check_dataset(dataset_dir, pipeline=True, max_trial_samples=max_trial_samples)
     try:
         meta = _meta(dataset_dir)
     except sio.ContractError:
@@ -81,10 +92,9 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
 def ingest(dataset_dir: str | Path, trial: str, out_parquet: str | Path) -> pd.DataFrame:
     """Raw DAQ log -> SI signals with actuator voltage and charge (thesis eqs. 56-57)."""
     rig = sio.load_rig(dataset_dir)
-    df = prepare_trial(sio.trial_signals(dataset_dir, trial, rig=rig), rig)
-    df = df[SIGNAL_COLUMNS].reset_index(drop=True)
-    sio.write_parquet_atomic(df, out_parquet)
-    return df
+    df = prepare_trial(sio.trial_signals(dataset_dir, trial, rig=rig), rig)  # a fresh frame, RangeIndex
+    sio.write_parquet_atomic(df, out_parquet, columns=SIGNAL_COLUMNS)  # no copy of the frame (sample budget)
+    return df[SIGNAL_COLUMNS]
 
 
 def _load_signals(paths: Mapping[str, str | Path]) -> dict[str, pd.DataFrame]:
@@ -119,13 +129,15 @@ def estimate(dataset_dir: str | Path, signal_path: str | Path, model_json: str |
              out_parquet: str | Path, full_out: str | Path | None = None) -> pd.DataFrame:
     """Estimate tip displacement and force of one trial; writes the contract columns ``t, dx_hat, f_hat, dx_ref, f_ref``."""
     est = load_estimator(dataset_dir, model_json)
-    sig = pd.read_parquet(signal_path)
+    sig = pd.read_parquet(signal_path, columns=_ESTIMATE_INPUTS)
     out = est.estimate(sig)
     out["dx_ref"] = sig["dx_ref"].to_numpy()
     out["f_ref"] = sig["f_ref"].to_numpy()
-    sio.write_parquet_atomic(out[ESTIMATE_COLUMNS].reset_index(drop=True), out_parquet)
+    del sig  # memory: the trial is held once at a time (sample budget, benchmarks/MEMORY.md)
+    out = out.reset_index(drop=True) if not isinstance(out.index, pd.RangeIndex) else out
+    sio.write_parquet_atomic(out, out_parquet, columns=ESTIMATE_COLUMNS)  # no copy of the frame (sample budget)
     if full_out is not None:
-        sio.write_parquet_atomic(out.reset_index(drop=True), full_out)
+        sio.write_parquet_atomic(out, full_out)
     return out
 
 
@@ -155,24 +167,50 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     rig = sio.load_rig(dataset_dir)
     meta = _meta(dataset_dir)
     # memory bounded by the longest trial, not the dataset: calibration trials stay loaded (the fits need them),
-    # every other trial is read, estimated and scored one at a time, keeping only its error row
-    cal = {t: p for t, p in signal_paths.items() if t in meta.index and meta.loc[t, "role"] == "calibration"}
-    sigs = _load_signals(cal)
-    rows = []
-    for h_model, mode in (("modified_pi", "thesis"), ("modified_pi", "onsite"), ("ri", "thesis"), ("ri", "onsite")):
-        cfg = dict(config)
-        cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model)
-        est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
-        pts = []
+    # the four estimators are fitted first, then every other trial is read once, estimated by each and scored,
+    # keeping only its error rows; Arrow's buffers come from the system allocator so that a freed trial is
+    # returned to the OS instead of being cached (benchmarks/MEMORY.md)
+    import gc
+
+    import pyarrow as pa
+
+    pool = pa.default_memory_pool()
+    pa.set_memory_pool(pa.system_memory_pool())
+    try:
+        cal = {t: p for t, p in signal_paths.items() if t in meta.index and meta.loc[t, "role"] == "calibration"}
+        sigs = _load_signals(cal)
+        combos = (("modified_pi", "thesis"), ("modified_pi", "onsite"), ("ri", "thesis"), ("ri", "onsite"))
+        ests = {}
+        for h_model, mode in combos:
+            cfg = dict(config)
+            cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model)
+            ests[(h_model, mode)] = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+        pts: dict = {c: [] for c in combos}
+        left_out = {}
         for t in sorted(signal_paths):
-            s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t])
-            e = est.estimate(s)
-            e = pd.DataFrame({"dx_hat": e["dx_hat"].to_numpy(), "f_hat": e["f_hat"].to_numpy(),
-                              "dx_ref": s["dx_ref"].to_numpy(), "f_ref": s["f_ref"].to_numpy()})
+            if t not in sigs:
+                import pyarrow.parquet as pq
+
+                n = pq.ParquetFile(str(signal_paths[t])).metadata.num_rows
+                if n > COMPARE_MAX_SAMPLES:  # sample budget: the RI evaluation needs ~400 B per sample
+                    left_out[t] = n
+                    continue
+            s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t], columns=_ESTIMATE_INPUTS)
+            for c in combos:
+                e = ests[c].estimate(s)
+                e = pd.DataFrame({"dx_hat": e["dx_hat"].to_numpy(), "f_hat": e["f_hat"].to_numpy(),
+                                  "dx_ref": s["dx_ref"].to_numpy(), "f_ref": s["f_ref"].to_numpy()})
+                pts[c].append(tables.per_trial_table({t: e}, meta.reset_index()))
+                del e
+                gc.collect()
             del s
-            pts.append(tables.per_trial_table({t: e}, meta.reset_index()))
-            del e
-        t3 = tables.table3(pd.concat(pts, ignore_index=True))
+            gc.collect()
+    finally:
+        pa.set_memory_pool(pool)
+    rows = []
+    for (h_model, mode) in combos:
+        est = ests[(h_model, mode)]
+        t3 = tables.table3(pd.concat(pts[(h_model, mode)], ignore_index=True))
         for _, r in t3.iterrows():
             rows.append({"h_model": h_model, "h_mode": mode, "measurement": r["measurement"],
                          "mean_abs_error": r["mean_abs_error"],
@@ -189,6 +227,9 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
         g = g.set_index("measurement")
         lines.append(f"| {mlabel[h_model]} | {label[mode]} | {g.loc['displacement', 'percent_of_range']:.2f} | "
                      f"{g.loc['force', 'percent_of_range']:.2f} | {g['h_fit_rms_pct'].iloc[0]:.3f} |")
+    if left_out:
+        lines += ["", "Left out of this comparison (sample budget of " + f"{COMPARE_MAX_SAMPLES:,} samples per trial; "
+                  "Table 3 includes them): " + ", ".join(f"{t} ({n:,} samples)" for t, n in sorted(left_out.items()))]
     sio.write_text_atomic("\n".join(lines) + "\n", out_md)
     return df
 
@@ -420,7 +461,8 @@ def by_trial(paths) -> dict[str, str]:
 #: wildcards) -> stage call. Rules with plotting (figures, gap diagnostic) and the heavier mode comparison keep
 #: ``script:`` and a process of their own.
 _JOBS = {
-    "validate_dataset": lambda i, o, p, w: validate(p.dataset_dir, o[0], p.on_bad_trial),
+    "validate_dataset": lambda i, o, p, w: validate(p.dataset_dir, o[0], p.on_bad_trial,
+                                                    int(getattr(p, "max_trial_samples", MAX_TRIAL_SAMPLES))),
     "ingest": lambda i, o, p, w: ingest(p.dataset_dir, w.trial, o[0]),
     "calibrate_hysteresis": lambda i, o, p, w: calibrate(p.dataset_dir, by_trial(i.signals), p.config, o[0]),
     "regress_coefficients": lambda i, o, p, w: regress(p.dataset_dir, by_trial(i.signals), i.hysteresis, o[0]),

@@ -20,7 +20,7 @@ import yaml
 from selfsense.io import ContractError, check_dataset, load_dataset
 from selfsense.io.outputs import MARKER, OutputError, check_output_dir, output_dir
 
-from io_factory import read_any, write_log
+from io_factory import read_any
 from test_catalogue import ANY, CASES as PART1, match, mod_log, mod_rig, mod_trials
 
 RNG = np.random.default_rng(16)
@@ -515,6 +515,72 @@ def test_run_refuses_bad_config_before_snakemake(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(subprocess, "call", lambda *a, **k: pytest.fail("snakemake must not start"))
     rc, err = _cli(["run", "--directory", str(tmp_path)], capsys)
     assert rc == 2 and "apart from raw_dir" in err
+
+
+# ---- memory: sample budgets (selfsense.io.budget) ---------------------------------------------------------
+def test_read_parquet_decimated_is_stride_and_bounded(tmp_path):
+    import pandas as pd
+
+    from selfsense.io import read_parquet_decimated
+
+    n = 100_003
+    df = pd.DataFrame({"t": np.arange(n) * 1e-4, "x": np.sin(np.arange(n) * 1e-3)})
+    p = tmp_path / "long.parquet"
+    df.to_parquet(p, index=False)
+    got, k = read_parquet_decimated(p, max_rows=10_000, batch_size=7_777)  # batches not a multiple of k
+    assert k == 11 and len(got) <= 10_000
+    np.testing.assert_array_equal(got["t"].to_numpy(), df["t"].to_numpy()[::k])
+    same, k1 = read_parquet_decimated(p, max_rows=n)
+    assert k1 == 1 and len(same) == n
+
+
+def test_block_mean_keeps_relay_shorted_and_means():
+    import pandas as pd
+
+    from selfsense.io import block_mean
+
+    df = pd.DataFrame({"q": np.arange(10.0), "relay": [1, 1, 1, 0, 0, 0, 0, 0, 0, 0.0]})
+    b = block_mean(df, 4)
+    assert b["q"].tolist() == [1.5, 5.5, 8.5] and b["relay"].tolist() == [1.0, 0.0, 0.0]
+    assert b.attrs["decimation"] == 4 and block_mean(df, 1) is df
+
+
+def test_gap_case_decimated_above_budget(dataset):
+    from selfsense.gap.data import load_case
+
+    full = load_case(dataset, with_truth=False)
+    small = load_case(dataset, with_truth=False, max_samples=500)
+    assert full.decimated == {}
+    assert small.decimated == {t: 3 for t in full.trials}  # 1500 samples -> block means of 3
+    for t, df in small.trials.items():
+        assert len(df) == 500
+        np.testing.assert_allclose(df["q"].to_numpy(), full.trials[t]["q"].to_numpy().reshape(-1, 3).mean(axis=1))
+
+
+@pytest.mark.parametrize("file", ["free_sine.parquet", "free_steps.csv"])
+def test_trial_above_sample_budget_refused_before_reading(dataset, monkeypatch, file):
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    def boom(*a, **k):
+        raise AssertionError("the body of a log above the sample budget was read")
+    errors, _ = check_dataset(dataset, pipeline=True, max_trial_samples=1000)
+    assert match(errors, file, None, None, "at most 1,000 samples per trial"), errors
+    assert match(errors, file, None, None, "found '1,500 samples'")
+    monkeypatch.setattr(pd, "read_csv", boom)
+    monkeypatch.setattr(pq.ParquetFile, "read", boom)
+    errors, _ = check_dataset(dataset, pipeline=True, max_trial_samples=1000)
+    assert match(errors, file, None, None, "selfsense estimate")
+
+
+def test_stages_validate_applies_budget(dataset, tmp_path):
+    from selfsense import stages
+
+    with pytest.raises(ContractError, match="sample budget"):
+        stages.validate(dataset, tmp_path / "v.json", max_trial_samples=1000)
+    assert not (tmp_path / "v.json").exists()
+    summary = stages.validate(dataset, tmp_path / "v.json")
+    assert summary["valid"] and summary["warnings"] == []
 
 
 def test_catalogue_total():

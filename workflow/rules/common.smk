@@ -6,6 +6,10 @@ import os
 from selfsense import io as sio
 from selfsense import stages
 
+# Arrow buffers from the system allocator in every job: a trial read and freed returns its memory to the OS instead
+# of staying in mimalloc's cache (peak RSS per job, benchmarks/MEMORY.md)
+os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+
 RAW = config.get("raw_dir", "data/raw")
 RESULTS = config.get("results_dir", "results")
 DATASETS = list(config["datasets"])

@@ -20,6 +20,7 @@ checkpoint validate_dataset:
     params:
         dataset_dir=dataset_dir,
         on_bad_trial=config.get("on_bad_trial", "fail"),
+        max_trial_samples=config.get("max_trial_samples", 6000000),
     run:
         stages.run_job("validate_dataset", input, output, params, wildcards, log)
 

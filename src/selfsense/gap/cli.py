@@ -43,7 +43,15 @@ def _benchmark(a) -> int:
         cmd += f" --estimator {a.estimator}"
     if a.jobs > 1:
         cmd += f" --jobs {a.jobs}"
-    sc = run_benchmark(a.n, a.seed, a.tier, Path(a.out), cmd, sim_kind=a.sim, estimator=a.estimator, jobs=a.jobs)
+    from selfsense.io.outputs import MARKER, check_output_dir, output_lock
+
+    out = Path(a.out)
+    with output_lock(out):  # one campaign per folder at a time; a foreign non-empty folder is never written into
+        if not (out / "scenarios").is_dir():  # a new campaign (an existing one is resumed)
+            check_output_dir(out, force=a.force)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / MARKER).write_text("written by selfsense gap benchmark\n")
+        sc = run_benchmark(a.n, a.seed, a.tier, out, cmd, sim_kind=a.sim, estimator=a.estimator, jobs=a.jobs)
     dt = time.perf_counter() - t0
     print(f"{a.n} cases in {dt:.1f} s; family_top1={sc['family_top1']:.3f} member_top1={sc['member_top1']:.3f} "
           f"false_alarm={sc['false_alarm_rate_effect_free']:.3f} -> {a.out}/scores.md")
@@ -111,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="device: selfsense.sim (default); toy: selfsense.gap.toysim")
     b.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing_ri",
                    help="nominal model whose gap is diagnosed (default sensing_ri: RI + creep, the best nominal)")
+    b.add_argument("--force", action="store_true", help="write into --out even if it is a non-empty folder "
+                   "selfsense did not create")
     b.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
     b.set_defaults(fn=_benchmark)
     s = sub.add_parser("scenario", help="one benchmark case -> JSON", description="one benchmark case -> JSON", allow_abbrev=False)

@@ -88,7 +88,30 @@ def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     return atomic_write_bytes(path, data)
 
 
-def parquet_bytes(df: pd.DataFrame) -> bytes:
+def _parquet_table(df: pd.DataFrame, columns: list[str] | None = None):
+    """The Arrow table written for ``df`` (or its ``columns``): checked index and names, no metadata."""
+    import pyarrow as pa
+
+    if not isinstance(df.index, pd.RangeIndex) or df.index.start != 0 or df.index.step != 1:
+        raise ValueError("write_parquet_atomic: the frame must have a default RangeIndex; "
+                         "call df.reset_index() (keep the index as a column) first")
+    if not all(isinstance(c, str) for c in df.columns):
+        raise ValueError("write_parquet_atomic: column names must be strings")
+    cols = list(df.columns) if columns is None else list(columns)
+    if all(df[c].dtype.kind in "fiub" for c in cols):
+        # numeric columns: arrays straight from numpy (zero-copy data buffers; NaN -> null exactly as from_pandas),
+        # so a long trial is not held twice -- same bytes as Table.from_pandas
+        table = pa.Table.from_arrays([pa.array(df[c].to_numpy(), from_pandas=True) for c in cols], names=cols)
+    else:
+        table = pa.Table.from_pandas(df[cols], preserve_index=False).replace_schema_metadata(None)
+    return table
+
+
+_PARQUET_OPTIONS = dict(compression="zstd", compression_level=3, use_dictionary=False, write_statistics=True,
+                        store_schema=False)
+
+
+def parquet_bytes(df: pd.DataFrame, columns: list[str] | None = None) -> bytes:
     """Deterministic Parquet bytes of ``df``: no index, no pandas/arrow schema metadata, fixed options.
 
     The frame must have a default RangeIndex (a meaningful index would be silently lost: reset it first).
@@ -96,21 +119,20 @@ def parquet_bytes(df: pd.DataFrame) -> bytes:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    if not isinstance(df.index, pd.RangeIndex) or df.index.start != 0 or df.index.step != 1:
-        raise ValueError("write_parquet_atomic: the frame must have a default RangeIndex; "
-                         "call df.reset_index() (keep the index as a column) first")
-    if not all(isinstance(c, str) for c in df.columns):
-        raise ValueError("write_parquet_atomic: column names must be strings")
-    table = pa.Table.from_pandas(df, preserve_index=False).replace_schema_metadata(None)
     sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd", compression_level=3, use_dictionary=False,
-                   write_statistics=True, store_schema=False)
+    pq.write_table(_parquet_table(df, columns), sink, **_PARQUET_OPTIONS)
     return sink.getvalue().to_pybytes()
 
 
-def write_parquet_atomic(df: pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Write ``df`` to ``path`` as deterministic Parquet (same frame -> same bytes), atomically."""
-    return atomic_write_bytes(path, parquet_bytes(df))
+def write_parquet_atomic(df: pd.DataFrame, path: str | os.PathLike, columns: list[str] | None = None) -> Path:
+    """Write ``df`` (or its ``columns``) to ``path`` as deterministic Parquet (same frame -> same bytes as
+    :func:`parquet_bytes`), atomically, streamed into the temporary file (the bytes are never held in memory)."""
+    import pyarrow.parquet as pq
+
+    table = _parquet_table(df, columns)
+    with atomic_write(path, "wb") as fh:
+        pq.write_table(table, fh, **_PARQUET_OPTIONS)
+    return Path(path)
 
 
 def _json_default(o: Any) -> Any:

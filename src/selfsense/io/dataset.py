@@ -31,17 +31,18 @@ class Dataset:
         return self.rig.dataset
 
 
-def _log_problems(dataset_dir: Path, rig: Rig | None, rec: Mapping[str, Any]) -> tuple[pd.DataFrame | None,
-                                                                                       list[Problem]]:
+def _log_problems(dataset_dir: Path, rig: Rig | None, rec: Mapping[str, Any], max_rows: int | None = None
+                  ) -> tuple[pd.DataFrame | None, list[Problem]]:
     """Contract checks of one trial log, then (when it passed them and the rig is valid) the physical
     plausibility checks of :mod:`selfsense.io.plausibility` (errors and warnings)."""
-    df, lp = check_log(dataset_dir / rec["file"], rig, rec["reference"], name=rec["file"])
+    df, lp = check_log(dataset_dir / rec["file"], rig, rec["reference"], name=rec["file"], max_rows=max_rows)
     if df is not None and not lp and rig is not None:
         lp = check_plausibility(df, rig, rec, rec["file"])
     return df, lp
 
 
-def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, pipeline: bool = False
+def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, pipeline: bool = False,
+                      max_trial_samples: int | None = None
                       ) -> tuple[Rig | None, pd.DataFrame | None, list[Problem], int]:
     """(rig, trials, errors, number of samples); warnings are appended to ``warnings`` when given; with
     ``pipeline`` also what the pipeline needs beyond the contract (:func:`selfsense.io.trials.pipeline_problems`)."""
@@ -55,7 +56,7 @@ def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, 
     n_samples = 0
     if trials is not None:
         for rec in trials.to_dict("records"):
-            df, lp = _log_problems(dataset_dir, rig, rec)
+            df, lp = _log_problems(dataset_dir, rig, rec, max_trial_samples)
             probs += [p for p in lp if not p.is_warning]
             if warnings is not None:
                 warnings += [p for p in lp if p.is_warning]
@@ -64,7 +65,8 @@ def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, 
     return rig, trials, probs, n_samples
 
 
-def check_dataset(dataset_dir: str | Path, pipeline: bool = False) -> tuple[list[Problem], list[Problem]]:
+def check_dataset(dataset_dir: str | Path, pipeline: bool = False, max_trial_samples: int | None = None
+                  ) -> tuple[list[Problem], list[Problem]]:
     """``(errors, warnings)`` of a dataset folder: contract problems and physical plausibility findings (and with
     ``pipeline`` what the pipeline needs: :func:`selfsense.io.trials.pipeline_problems`).
 
@@ -72,7 +74,7 @@ def check_dataset(dataset_dir: str | Path, pipeline: bool = False) -> tuple[list
     ``validation.json``, which the report shows.
     """
     warnings: list[Problem] = []
-    errors = _dataset_problems(Path(dataset_dir), warnings, pipeline)[2]
+    errors = _dataset_problems(Path(dataset_dir), warnings, pipeline, max_trial_samples)[2]
     return errors, warnings
 
 

@@ -316,9 +316,34 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
     return probs
 
 
+def _too_long(name: str, n: int, max_rows: int | None) -> list[Problem]:
+    if max_rows is None or n <= max_rows:
+        return []
+    return [Problem(name, None, None, f"at most {max_rows:,} samples per trial (the pipeline's sample budget, config "
+                    "max_trial_samples: every job stays below 2 GB up to it; split the log into trials, or stream it "
+                    "with 'selfsense estimate', which has no length limit)", f"{n:,} samples")]
+
+
+def _count_csv_rows(path: Path) -> int:
+    """Data lines of a CSV file (newlines minus the header), counted in 1 MiB blocks (bounded memory)."""
+    n = 0
+    last = b"\n"
+    with open(path, "rb") as fh:
+        while True:
+            b = fh.read(1 << 20)
+            if not b:
+                break
+            n += b.count(b"\n")
+            last = b[-1:]
+    return n + (last != b"\n") - 1
+
+
 def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = None,
-              name: str | None = None) -> tuple[pd.DataFrame | None, list[Problem]]:
+              name: str | None = None, max_rows: int | None = None) -> tuple[pd.DataFrame | None, list[Problem]]:
     """Read and check one trial log; return ``(canonical DataFrame or None, problems)``.
+
+    ``max_rows`` (the pipeline's sample budget): a longer CSV or Parquet log is refused from its row count, before
+    its body is read.
 
     Never raises on bad data. The frame has the columns ``CANONICAL_COLUMNS`` as float64 in SI
     (after ``rig.channel_map`` renaming/scaling) and a RangeIndex; it is ``None`` when the file could not
@@ -363,6 +388,10 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         probs = _column_problems(name, header, wanted)
         if probs:
             return None, _separator_hint(name, header, wanted) or probs
+        if max_rows is not None:
+            probs = _too_long(name, _count_csv_rows(path) - skip - (1 if units else 0), max_rows)
+            if probs:
+                return None, probs
         if skip:
             _note(name, f"{skip} preamble line(s) before the header line skipped (oscilloscope export)")
         if units:
@@ -397,11 +426,15 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         probs = _column_problems(name, names, wanted)
         if probs:
             return None, probs
+        probs = _too_long(name, pf.metadata.num_rows, max_rows)
+        if probs:
+            return None, probs
         if pf.metadata.num_rows == 0:
             return None, [Problem(name, None, None, "at least 2 samples", "no data rows (empty log)")]
         try:
             table = pf.read(columns=list(wanted))
             raw = table.to_pandas()
+            del table  # memory: the log is held once (sample budget)
         except Exception as e:  # noqa: BLE001
             return None, [Problem(name, None, None, "readable Parquet data (truncated or corrupt file?)",
                                   _one_line(e))]
@@ -415,6 +448,7 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
             return None, num_probs
         raw, num_probs = _bad_cells(name, raw, list(wanted))
     df = pd.DataFrame({c: raw[fcol[c]].to_numpy(dtype=np.float64, copy=True) for c in CANONICAL_COLUMNS})
+    del raw  # memory: the log is held once (sample budget)
     if cmap is not None:
         for c, s in cmap.scale.items():
             df[c] = df[c] * s

@@ -1,6 +1,6 @@
 """``selfsense simulate``: write a virtual-tweezer dataset and its truth folder.
 
-    selfsense simulate --scenario FILE.yaml --seed N --out DIR [--truth DIR] [--preset tweezer_sim|sample]
+    selfsense simulate --scenario FILE.yaml --seed N --out DIR [--truth DIR] [--preset tweezer_sim|sample] [--force]
 
 ``--preset`` loads a packaged scenario (src/selfsense/sim/presets/); ``--scenario`` a YAML file.
 Without ``--seed`` the scenario's own seed is used.  The truth folder defaults to ``<DIR>.truth``.
