@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=10000.0)
     ap.add_argument("--out", default=str(HERE / "MEMORY.md"))
+    ap.add_argument("--h-model", default=None, choices=["modified_pi", "ri"],
+                    help="config calibration.h_model of the run (default: the repository's config.yaml)")
     ap.add_argument("--keep", default=None, help="keep the work folder here (default: a temporary one, removed)")
     a = ap.parse_args(argv)
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="selfsense_mem_"))
@@ -119,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
             return rc
         cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
         cfg.update(datasets=["long"], raw_dir=str(raw), results_dir=str(work / "results"))
+        if a.h_model:
+            cfg["calibration"] = dict(cfg.get("calibration") or {}, h_model=a.h_model)
         (work / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
         hook = work / "hook"
         hook.mkdir(exist_ok=True)
@@ -188,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
         lines = [
             "# Peak memory per pipeline job on one long trial",
             "",
-            f"`python benchmarks/memory_pipeline.py --minutes {a.minutes:g} --rate {a.rate:g}` on "
+            f"`python benchmarks/memory_pipeline.py --minutes {a.minutes:g} --rate {a.rate:g}"
+            + (f" --h-model {a.h_model}" if a.h_model else "") + "` on "
             f"{platform.node() and 'this project'}'s {os.cpu_count()}-core machine, Python {platform.python_version()}.",
             f"Dataset: `selfsense simulate` (virtual tweezer), three 10 s trials and `val_long`, {a.minutes:g} min at "
             f"{a.rate:g} Hz = {n_long:,} samples; whole Snakefile with `--cores 2` (gap diagnostic and mode "
