@@ -5,8 +5,9 @@
 Simulates a dataset with the virtual tweezer (``selfsense simulate``): three short calibration / validation
 trials and one long validation trial of ``--minutes`` at ``--rate``; runs the whole Snakefile on it (gap
 diagnostic and mode comparison included, ``--cores 2``) in a temporary folder, and records the true peak resident
-set size of every job: a ``sitecustomize`` hook on the jobs' ``PYTHONPATH`` writes ``getrusage(RUSAGE_SELF)
-.ru_maxrss`` (the kernel's high-water mark) with the job's rule and wildcards when the job's Python exits.
+set size of every job: a ``sitecustomize`` hook on the jobs' ``PYTHONPATH`` writes ``VmHWM`` of
+``/proc/self/status`` (the kernel's high-water mark of the process; ``ru_maxrss`` would carry the parent's RSS
+across fork and exec) with the job's rule and wildcards when the job's Python exits.
 (Snakemake's own ``benchmark:`` ``max_rss`` only samples every 1-30 s and can miss a short peak; it is shown
 beside it.) Writes a table with the declared ``mem_mb`` of each rule. Target: every job below 2 GB. Not a test:
 it takes several minutes.
@@ -35,19 +36,28 @@ import atexit, os, resource, sys
 
 
 def _selfsense_peak():
-    sm = getattr(sys.modules.get("__main__"), "snakemake", None)
-    if sm is None:
-        if "snakemake" in " ".join(sys.argv[:1] + sys.argv[1:2]) or getattr(sys.modules.get("__main__"), "__spec__", None) and "snakemake" in str(sys.modules["__main__"].__spec__.name):
-            with open(os.environ["SELFSENSE_PEAK_LOG"], "a") as fh:
-                fh.write(f"snakemake process (hosts the run: jobs)\\t\\t{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
-        return
+    # VmHWM: this process's own high-water mark (ru_maxrss would carry the parent's RSS across fork + exec)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     try:
-        items = list(sm.wildcards.items())
-    except Exception:
-        items = []
-    wc = ",".join(f"{k}={v}" for k, v in items)
+        with open("/proc/self/status") as st:
+            peak = next(int(l.split()[1]) for l in st if l.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        pass
+    prog = sys.argv[0] if sys.argv else ""
+    if "/.snakemake/scripts/" in prog:  # a script: job, a process of its own
+        sm = getattr(sys.modules.get("__main__"), "snakemake", None)
+        try:
+            items = list(sm.wildcards.items())
+        except Exception:
+            items = []
+        wc = ",".join(f"{k}={v}" for k, v in items)
+        line = f"{getattr(sm, 'rule', prog)}\\t{wc}\\t{peak}\\n"
+    elif prog.endswith(("snakemake/__main__.py", "/snakemake")):
+        line = f"snakemake process (hosts the run: jobs)\\t\\t{peak}\\n"
+    else:
+        return
     with open(os.environ["SELFSENSE_PEAK_LOG"], "a") as fh:
-        fh.write(f"{sm.rule}\\t{wc}\\t{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
+        fh.write(line)
 
 
 if os.environ.get("SELFSENSE_PEAK_LOG"):
@@ -79,7 +89,8 @@ def declared_mem_mb() -> dict[str, int]:
                 if bench and mem:
                     out[bench] = mem
                 bench, mem = None, None
-            m = re.search(r'/benchmarks/([\w.-]+?)(?:/|\.tsv)', line)
+            m = re.search(r'/benchmarks/([\w.-]+?)(?:/|\.tsv)', line) or \
+                re.search(r'"benchmarks",\s*"([\w.-]+?)(?:\.tsv)?"', line)
             if m:
                 bench = m.group(1)
             m = re.match(r"^\s+mem_mb=(\d+)", line)
@@ -198,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
             f"Dataset: `selfsense simulate` (virtual tweezer), three 10 s trials and `val_long`, {a.minutes:g} min at "
             f"{a.rate:g} Hz = {n_long:,} samples; whole Snakefile with `--cores 2` (gap diagnostic and mode "
             f"comparison included). Snakemake exit code {p.returncode}, {wall:.0f} s wall.",
-            f"Peak RSS of each job (`ru_maxrss` of the job's Python at exit, through a `sitecustomize` hook) against "
+            f"Peak RSS of each job (`VmHWM` of the job's Python at exit, through a `sitecustomize` hook; re-runs: "
+            "`ru_maxrss` of the child of a small wrapper) against "
             f"the target of {TARGET_MB:.0f} MB per job: **{'met' if ok else 'NOT met'}** (largest {peak:.0f} MB). "
             "Snakemake's sampled `max_rss` (every 1-30 s) is shown for comparison. The workflow's light rules use "
             "`run:` and execute in threads of the Snakemake process when run locally (a process per job on a "

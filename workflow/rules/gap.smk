@@ -31,7 +31,7 @@ rule gap_diagnose:
         "../envs/selfsense.yaml"
     threads: 1
     resources:
-        mem_mb=1400,  # true peak 1099 MB at the sample budget: block means (benchmarks/MEMORY.md)
+        mem_mb=1400,  # peak 1142 MB at the sample budget: block means (benchmarks/MEMORY.md)
         runtime=30,
     params:
         dataset_dir=dataset_dir,

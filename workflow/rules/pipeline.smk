@@ -15,7 +15,7 @@ checkpoint validate_dataset:
         res("{dataset}", "benchmarks", "validate.tsv")
     threads: 1
     resources:
-        mem_mb=1000,
+        mem_mb=1300,  # peak 996 MB at the sample budget (benchmarks/MEMORY.md)
         runtime=10,
     params:
         dataset_dir=dataset_dir,
@@ -37,7 +37,7 @@ rule ingest:
         res("{dataset}", "benchmarks", "ingest", "{trial}.tsv")
     threads: 1
     resources:
-        mem_mb=2000,
+        mem_mb=1300,  # peak 1020 MB at the sample budget (benchmarks/MEMORY.md)
         runtime=10,
     params:
         dataset_dir=dataset_dir,
@@ -98,7 +98,7 @@ rule estimate:
         res("{dataset}", "benchmarks", "estimate", "{trial}.tsv")
     threads: 1
     resources:
-        mem_mb=2000,
+        mem_mb=1600,  # peak 1272 MB at the sample budget, h_model modified_pi (benchmarks/MEMORY.md)
         runtime=10,
     params:
         dataset_dir=dataset_dir,
@@ -130,7 +130,7 @@ rule score:
         res("{dataset}", "benchmarks", "score.tsv")
     threads: 1
     resources:
-        mem_mb=2000,
+        mem_mb=800,  # peak 618 MB at the sample budget (benchmarks/MEMORY.md)
         runtime=10,
     params:
         dataset_dir=dataset_dir,
@@ -161,7 +161,7 @@ rule compare_modes:
         "../envs/selfsense.yaml"
     threads: 1
     resources:
-        mem_mb=4000,
+        mem_mb=1700,  # peak 1361 MB with a trial at its 2e6-sample budget (benchmarks/MEMORY.md)
         runtime=30,
     params:
         dataset_dir=dataset_dir,
@@ -193,7 +193,7 @@ rule figures:
         "../envs/selfsense.yaml"
     threads: 1
     resources:
-        mem_mb=2000,
+        mem_mb=1100,  # peak 880 MB at the sample budget: every k-th row drawn (benchmarks/MEMORY.md)
         runtime=10,
     params:
         dataset_dir=dataset_dir,
