@@ -45,7 +45,8 @@ def sensing_config(config: Mapping[str, Any]) -> SensingConfig:
 #: the pipeline's sample budget per trial (config max_trial_samples): 10 min at 10 kHz, measured below 2 GB per job
 #: by benchmarks/memory_pipeline.py (benchmarks/MEMORY.md)
 MAX_TRIAL_SAMPLES = 6_000_000
-#: compare_modes evaluates four estimators per trial, two of them RI models (about 400 B per sample at the peak):
+#: compare_modes evaluates four estimators per trial, two of them RI models (about 270 B more per sample than the
+#: modified PI, benchmarks/MEMORY.md):
 #: longer validation trials are left out of that secondary table, with a note in it
 COMPARE_MAX_SAMPLES = 2_000_000
 
@@ -192,7 +193,7 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                 import pyarrow.parquet as pq
 
                 n = pq.ParquetFile(str(signal_paths[t])).metadata.num_rows
-                if n > COMPARE_MAX_SAMPLES:  # sample budget: the RI evaluation needs ~400 B per sample
+                if n > COMPARE_MAX_SAMPLES:  # sample budget: the RI evaluation needs ~270 B more per sample
                     left_out[t] = n
                     continue
             s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t], columns=_ESTIMATE_INPUTS)
