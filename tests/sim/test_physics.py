@@ -73,12 +73,12 @@ def test_kernel_matches_python_reference():
     eff = resolve_effects({"mechanism_mode": 0.5, "backlash": 20.0, "contact_nonlinearity": 1.0})
     t, u, relay = _drive(tr, dev, 1000.0)
     u = u + 0.0
-    P, comps = trial_params(dev, eff, tr, 1000.0, 4)
+    P, comps, hp = trial_params(dev, eff, tr, 1000.0, 4)
     dT = np.zeros(t.size)
     o1 = np.zeros((NOUT, t.size))
     o2 = np.zeros((NOUT, t.size))
-    run_kernel(u, relay, dT, P, comps, o1)
-    run_kernel.py_func(u, relay, dT, P, comps, o2)
+    run_kernel(u, relay, dT, P, comps, hp, o1)
+    run_kernel.py_func(u, relay, dT, P, comps, hp, o2)
     np.testing.assert_allclose(o1, o2, rtol=1e-9, atol=1e-15)
     assert np.abs(o1[1]).max() > 10.0  # something happened
 

@@ -57,6 +57,9 @@ class DeviceParams:
     catalog_capacitance_f: float
     catalog_max_voltage_v: float
     tip_free_displacement_m: float
+    h_family: str = "preisach"
+    h_sign: float = 1.0
+    h_params: tuple = ()
 
     # ---- derived -------------------------------------------------------------------------
     @property
@@ -87,7 +90,15 @@ def _coerce(d: dict) -> dict:
     for k, v in d.items():
         if k not in names:
             raise ValueError(f"unknown device parameter {k!r}")
-        if isinstance(v, list):
+        if k == "h_family":
+            from .truth import family_code
+
+            family_code(str(v))
+            out[k] = str(v)
+            continue
+        if k == "h_params":
+            v = tuple(float(x) for x in v)
+        elif isinstance(v, list):
             v = tuple(tuple(float(y) for y in x) if isinstance(x, (list, tuple)) else float(x) for x in v)
         elif k in ("n_actuators", "adc_bits", "demag_cycles"):
             v = int(v)

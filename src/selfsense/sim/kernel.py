@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from .preisach import MAXS, U_BOTTOM, _fill_l, demagnetise, preisach_commit, preisach_eval
+from .truth import NSTATE, truth_commit, truth_eval, truth_init
 
 # parameter vector layout --------------------------------------------------------------------
 PNAMES = (
@@ -44,6 +45,7 @@ PNAMES = (
     "stress_m", "f_stress_ref",
     "env_contact", "gap", "k_env", "hertz_m", "delta_ref",
     "backlash_r", "sm_m", "sm_omega", "sm_zeta", "preload_u", "demag_amp", "demag_cycles",
+    "h_family", "h_sign",
 )
 PI = {n: i for i, n in enumerate(PNAMES)}
 OUTS = ("V_c", "V", "V_p", "V_H", "q", "q_act", "x_pzt", "dx_tip", "f_tip", "arm", "i_s")
@@ -110,9 +112,10 @@ def _solve_tip(kk, rhs, contact, gap, kenv, hm, dref, zb, br):
 
 
 @njit(cache=True)
-def run_kernel(u_cmd, relay, dT, P, comps, out):
+def run_kernel(u_cmd, relay, dT, P, comps, hp, out):
     """Integrate one trial.  u_cmd [V] (DAQ output, held), relay (0/1), dT [K] per sample,
-    P parameter vector (PNAMES), comps Preisach components (ncomp, 4), out (NOUT, n) filled with
+    P parameter vector (PNAMES), comps Preisach components (ncomp, 4) (family 0), hp the parameters of the other
+    truth families (selfsense.sim.truth), out (NOUT, n) filled with
     the state at each sample instant t_k (before the interval [t_k, t_k+1) is integrated)."""
     n = u_cmd.size
     nsub = int(P[1])
@@ -167,13 +170,22 @@ def run_kernel(u_cmd, relay, dT, P, comps, out):
     cl = np.zeros((nc, 2))
     _fill_l(U_BOTTOM, comps, cl)
     tl[0, :, :] = cl
-    ydm = demagnetise(P[50], int(P[51]), tp, ty, tl, iv, fv, cl, comps)
+    fam = int(P[52])
+    hsign = P[53]
+    hs = np.zeros(NSTATE)
     lu = np.zeros((nc, 2))
-    if preload > 0.0:
-        _fill_l(preload, comps, lu)
-        preisach_commit(preload, lu, tp, ty, tl, iv, fv, cl, comps)
-        _fill_l(0.0, comps, lu)
-        preisach_commit(0.0, lu, tp, ty, tl, iv, fv, cl, comps)
+    if fam == 0:
+        ydm = demagnetise(P[50], int(P[51]), tp, ty, tl, iv, fv, cl, comps)
+        if preload > 0.0:
+            _fill_l(preload, comps, lu)
+            preisach_commit(preload, lu, tp, ty, tl, iv, fv, cl, comps)
+            _fill_l(0.0, comps, lu)
+            preisach_commit(0.0, lu, tp, ty, tl, iv, fv, cl, comps)
+    else:
+        ydm = truth_init(fam, hs, hp)
+        if preload > 0.0:
+            truth_commit(fam, preload, hs, hp)
+            truth_commit(fam, 0.0, hs, hp)
     # states
     Vc = 0.0
     q = 0.0          # actuator charge
@@ -254,9 +266,12 @@ def run_kernel(u_cmd, relay, dT, P, comps, out):
                 have_a = False
                 for it in range(40):
                     u = qn / qref
-                    _fill_l(u, comps, lu)
-                    y = preisach_eval(u, lu, tp, ty, tl, iv, fv, cl, comps)
-                    vh = (hlin * u - (y - ydm)) * stress
+                    if fam == 0:
+                        _fill_l(u, comps, lu)
+                        y = preisach_eval(u, lu, tp, ty, tl, iv, fv, cl, comps)
+                    else:
+                        y = truth_eval(fam, u, hs, hp)
+                    vh = (hlin * u - hsign * (y - ydm)) * stress
                     for j in range(3):
                         vh += ecc[j] * (1.0 - ecb[j]) * (u - z[j])
                     p0 = (qn + A * xcr - A * Kn * xcr / D) / den
@@ -295,7 +310,10 @@ def run_kernel(u_cmd, relay, dT, P, comps, out):
                     continue
                 break
             # commit
-            preisach_commit(u, lu, tp, ty, tl, iv, fv, cl, comps)
+            if fam == 0:
+                preisach_commit(u, lu, tp, ty, tl, iv, fv, cl, comps)
+            else:
+                truth_commit(fam, u, hs, hp)
             for j in range(3):
                 z[j] += (u - z[j]) * ecb[j]
             xn = x0 + x1 * dn

@@ -35,6 +35,7 @@ from .device import DeviceParams, load_device
 from .drive import waveform
 from .effects import EFFECTS, resolve_effects
 from .kernel import NOUT, OUTS, PI, PNAMES, run_kernel
+from .truth import NPAR, family_code
 
 __all__ = ["simulate_trial", "simulate_scenario_in_memory", "simulate_dataset", "load_scenario",
            "rig_dict", "trial_params", "LOG_COLUMNS", "TRUTH_COLUMNS"]
@@ -97,7 +98,7 @@ def _oc_tip_stiffness(dev: DeviceParams) -> float:
 
 
 def trial_params(dev: DeviceParams, eff: dict, trial: dict, sample_rate_hz: float, substeps: int):
-    """Parameter vector for the kernel and the Preisach component array."""
+    """Parameter vector for the kernel, the Preisach component array and the other families' parameters."""
     P = np.zeros(len(PNAMES))
     K = dev.stiffness_matrix
     s = {
@@ -110,6 +111,7 @@ def trial_params(dev: DeviceParams, eff: dict, trial: dict, sample_rate_hz: floa
         "mc_t0": 0.9, "mc_t1": 6.5, "mc_t2": 41.0, "mc_w0": 0.3, "mc_w1": 0.3, "mc_w2": 0.4,
         "f_stress_ref": 0.1, "delta_ref": 20e-6, "sm_omega": 2 * math.pi * SECOND_MODE_HZ, "sm_zeta": 0.015,
         "demag_amp": dev.demag_amplitude, "demag_cycles": dev.demag_cycles,
+        "h_family": family_code(dev.h_family), "h_sign": dev.h_sign,
     }
     for j in range(3):
         s[f"ec_c{j}"] = dev.ecreep_c_v[j]
@@ -155,7 +157,9 @@ def trial_params(dev: DeviceParams, eff: dict, trial: dict, sample_rate_hz: floa
         c = list(dev.virgin_lobe)
         c[3] *= eff["virgin_curve"]
         comps.append(c)
-    return P, np.ascontiguousarray(comps, dtype=float)
+    hp = np.zeros(NPAR)
+    hp[:len(dev.h_params)] = dev.h_params
+    return P, np.ascontiguousarray(comps, dtype=float), hp
 
 
 def _quantize(v, dev: DeviceParams):
@@ -179,10 +183,10 @@ def _drive(trial, dev, fs):
 
 
 def _run(dev, eff, trial, fs, substeps, t, u, relay, dT_unit):
-    P, comps = trial_params(dev, eff, trial, fs, substeps)
+    P, comps, hp = trial_params(dev, eff, trial, fs, substeps)
     out = np.zeros((NOUT, t.size))
     dT = eff["temperature"] * dT_unit
-    run_kernel(u, relay, dT, P, comps, out)
+    run_kernel(u, relay, dT, P, comps, hp, out)
     return {k: out[i] for i, k in enumerate(OUTS)}
 
 
