@@ -37,13 +37,12 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense.report import tables
     from selfsense.sensing import SelfSensingEstimator
     from selfsense.signals import prepare_trial
-    from selfsense.sim.families import draw_device, measure_free_stroke
+    from selfsense.sim.families import draw_device
     from selfsense.sim.simulate import simulate_dataset
     from selfsense.stages import sensing_config
 
     cfg = dict(config or _default_pipeline_config())
     sc = draw_device(family, seed, preset)
-    sc["device"]["tip_free_displacement_m"] = measure_free_stroke(sc)
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed),
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0)}

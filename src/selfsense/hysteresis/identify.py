@@ -97,7 +97,7 @@ def _regressors(xs, ys, r_H, z0, r_S, creep_bank, offset):
     return np.hstack(cols)
 
 
-def _solve_qp(P, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, solver, solver_opts):
+def _solve_qp(R, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, solver, solver_opts):
     import cvxpy as cp
 
     nw = nH + nS + nK + (1 if offset else 0)
@@ -121,7 +121,10 @@ def _solve_qp(P, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, so
         cons.append(qv @ w == 1.0)  # eqs. (76), (78)
     else:
         raise ValueError(f"gauge must be 'range' or 'thesis', got {gauge!r}")
-    prob = cp.Problem(cp.Minimize(0.5 * cp.quad_form(w, cp.psd_wrap(P))), cons)
+    # V(w) = 1/2 mean(E^2) = 1/2 |R w|^2 with R the triangular factor of the regressors (Q = Q_ R / sqrt(N)): the
+    # QP is posed on the factor, whose condition number is that of the regressors, not on the Gram matrix Q^T Q,
+    # which squares it (cond 5e4 -> 2.9e9 on a tweezer calibration trial, CALIBRATION_NOTES item 7)
+    prob = cp.Problem(cp.Minimize(0.5 * cp.sum_squares(R @ w)), cons)
     if solver_opts is None and str(solver).upper() == "CLARABEL":
         # the optimum of V(w) is tiny for good fits (1e-10..1e-16 in non-dimensional units): Clarabel's default
         # absolute gap tolerance (1e-8) stops far too early (weights ~1 % off). Try tight tolerances first and
@@ -150,7 +153,7 @@ def _solve_qp(P, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, so
 
 def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver="CLARABEL", fit_z0=False,
                     eps=1e-6, offset=False, gauge="range", z_H0=0.0, r_H=None, r_S_inv=None,
-                    solver_opts=None):
+                    solver_opts=None, row_mask=None):
     """Identify a ModifiedPI y = Gamma[x] (eq. 42) by Kuhnen's QP (App. A). Returns (ModifiedPI, FitReport).
 
     x, y: 1-D input / output (any units, e.g. charge [C] and V_H [V]); dt [s] sample time.
@@ -162,7 +165,8 @@ def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver
     fit_z0: also search a common initial play state z_H0 (else ``z_H0`` is used, [x units]).
     offset: add a free constant inside the superposition. gauge: 'range' (default) or 'thesis', see module doc.
     r_H / r_S_inv: override the play thresholds [x] / inverse-superposition thresholds [y] (r_S_inv must
-    contain 0). Raises IdentificationError for any solver status other than optimal.
+    contain 0). row_mask: boolean (N,) selecting the samples whose error enters V(w) (the operators still run over
+    the whole record: blocked cross-validation). Raises IdentificationError for any solver status other than optimal.
     """
     t0 = time.perf_counter()
     x = np.asarray(x, dtype=float).ravel()
@@ -193,8 +197,11 @@ def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver
 
     def solve_for(z0s):
         Q = _regressors(xs, ys, r_Hs, z0s, r_Ss, bank, offset)
-        P = (Q.T @ Q) / N  # eq. (65), mean instead of integral (same minimiser)
-        return _solve_qp(P, nH, nS, nK, r_Hs, r_Ss, ys.min(), ys.max(), len(a_K), eps, offset, gauge,
+        if row_mask is not None:
+            Q = Q[np.asarray(row_mask, bool)]
+        # eq. (65) (mean instead of integral, same minimiser) as 1/2 |R w|^2 with Q = Q_ R: a well-conditioned factor
+        R = np.linalg.qr(Q, mode="r") / np.sqrt(len(Q))
+        return _solve_qp(R, nH, nS, nK, r_Hs, r_Ss, ys.min(), ys.max(), len(a_K), eps, offset, gauge,
                          solver, solver_opts)
 
     z0s = float(z_H0) / sx
@@ -229,3 +236,36 @@ def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver
                     solver=str(solver), status=status, seconds=time.perf_counter() - t0, n_samples=int(N),
                     objective=obj * lam * lam, z_H0=z0s * sx, gauge=gauge)
     return model, rep
+
+
+#: QP solvers tried, in order, after the configured one fails or raises (only those installed are used)
+FALLBACK_SOLVERS = ("CLARABEL", "OSQP", "SCS", "ECOS")
+
+
+def fit_modified_pi_robust(x, y, dt, solver="CLARABEL", solvers=None, **kw):
+    """:func:`fit_modified_pi` that tries the configured solver, then every other installed QP solver of
+    ``FALLBACK_SOLVERS`` when one fails, raises or does not reach status 'optimal' (e.g. Clarabel on a
+    shape-memory-alloy record that OSQP and SCS solve). Returns (model, report dict with ``solver_attempts``);
+    raises :class:`IdentificationError` listing every attempt when all fail."""
+    import cvxpy as cp
+
+    installed = set(cp.installed_solvers())
+    order = [solver] + [s for s in (solvers or FALLBACK_SOLVERS) if s != solver]
+    attempts = []
+    for s in order:
+        if s not in installed:
+            if s == solver:
+                attempts.append(f"{s}: not installed")
+            continue
+        try:
+            model, rep = fit_modified_pi(x, y, dt, solver=s, **kw)
+        except (IdentificationError, ArithmeticError, ValueError) as exc:
+            attempts.append(f"{s}: {exc}")
+            continue
+        except Exception as exc:  # a solver that raises anything else is one failed attempt, not the end
+            attempts.append(f"{s}: {type(exc).__name__}: {exc}")
+            continue
+        d = {k: v for k, v in rep.__dict__.items() if k != "seconds"}
+        d["solver_attempts"] = attempts + [f"{s}: {rep.status}"]
+        return model, d
+    raise IdentificationError("modified PI QP: every solver failed: " + "; ".join(attempts))

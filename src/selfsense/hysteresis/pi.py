@@ -203,6 +203,13 @@ class ModifiedPI:
         return u
 
     # -- serialisation ------------------------------------------------------------------------------
+    def with_dt(self, dt: float) -> "ModifiedPI":
+        """The same operator discretised at another sample time ``dt`` [s]: the creep eigenvalues ``a_K`` are in 1/s
+        and stay; only their discrete-time factors 1 - exp(-a dt) change (CALIBRATION_NOTES item 8)."""
+        d = self.to_dict()
+        d["dt"] = float(dt)
+        return type(self).from_dict(d)
+
     def to_dict(self) -> dict:
         """Plain JSON-able dict (lists of floats); from_dict(to_dict()) reproduces the model bit-exactly."""
         L = lambda a: [float(v) for v in np.asarray(a).ravel()]  # noqa: E731

@@ -49,7 +49,8 @@ __all__ = [
 ]
 
 H_MODES = ("thesis", "onsite")
-H_MODELS = ("modified_pi", "ri")
+H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi")
+DRIFT = ("auto", "off")
 REGRESSIONS = ("auto", "approx", "full")
 
 
@@ -74,7 +75,7 @@ class SensingConfig:
     """Configuration of the estimator (the ``calibration`` / ``estimation`` keys of ``config.yaml``)."""
 
     h_mode: str = "thesis"
-    h_model: str = "modified_pi"
+    h_model: str = "auto"
     n_play: int = 15
     n_sup: int = 15
     n_creep: int | str = "auto"
@@ -88,12 +89,18 @@ class SensingConfig:
     fit_z0: bool = False
     max_fit_samples: int = 20000
     n_creep_thresholds: int = 8
+    drift: str = "auto"
+    cv_blocks: int = 5
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
             raise ValueError(f"SensingConfig.h_mode: expected one of {H_MODES}, found {self.h_mode!r}")
         if self.h_model not in H_MODELS:
             raise ValueError(f"SensingConfig.h_model: expected one of {H_MODELS}, found {self.h_model!r}")
+        if self.drift not in DRIFT:
+            raise ValueError(f"SensingConfig.drift: expected one of {DRIFT}, found {self.drift!r}")
+        if int(self.cv_blocks) < 2:
+            raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
             raise ValueError(f"SensingConfig.regression: expected one of {REGRESSIONS}, found {self.regression!r}")
         for name in ("n_play", "n_sup"):
@@ -222,11 +229,17 @@ def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float)
 
 
 def _h_to_dict(model) -> dict:
+    if hasattr(model, "kind") and hasattr(model, "predict"):
+        return {"kind": "registry", "params": model.to_dict()}
     return {"kind": type(model).__name__, "params": model.to_dict()}
 
 
 def _h_from_dict(d: Mapping[str, Any]):
     kind = d["kind"]
+    if kind == "registry":
+        from selfsense.hysteresis.models import h_from_dict
+
+        return h_from_dict(d["params"])
     if kind == "RICreepH":
         from selfsense.sensing.hmodels import RICreepH
 
@@ -244,7 +257,10 @@ def _h_from_dict(d: Mapping[str, Any]):
     raise ValueError(f"hysteresis model: unknown kind {kind!r}; expected 'GaugedH', 'ModifiedPI' or 'RIModel'")
 
 
-def _eval_h(model, Q: np.ndarray) -> np.ndarray:
+def _eval_h(model, Q: np.ndarray, dt: float | None = None) -> np.ndarray:
+    """H(Q) [V] of any stored model; registry models are evaluated at the sample time ``dt`` [s]."""
+    if hasattr(model, "predict") and hasattr(model, "kind"):
+        return np.asarray(model.predict(Q, dt), dtype=float)
     if type(model).__name__ == "RIModel":
         return np.asarray(model(np.maximum(Q, 0.0)), dtype=float)
     return np.asarray(model(Q), dtype=float)
@@ -261,6 +277,49 @@ def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
 def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:
     step = max(1, int(np.ceil(len(df) / max_samples)))
     return df.iloc[::step] if step > 1 else df
+
+
+def _trial_dt(df: pd.DataFrame) -> float:
+    t = df["t"].to_numpy(dtype=float)
+    return float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+
+
+def integral_v(df: pd.DataFrame) -> np.ndarray:
+    """``int_0^t V dtau`` [V s] restarted wherever the relay shorts the leads (like the charge, thesis eq. 57): the
+    charge a leakage conductance g draws through the shunt is ``g * integral_v`` (CALIBRATION_NOTES item 5)."""
+    from selfsense.signals import charge_from_shunt
+
+    V = df["V"].to_numpy(dtype=float)
+    relay = (df["relay"].to_numpy(dtype=float) >= 0.5).astype(float)
+    iv, _ = charge_from_shunt(df["t"].to_numpy(dtype=float), V, relay, 1.0, offset=None)
+    return iv
+
+
+def _candidates_for(h_model: str, cfg: "SensingConfig") -> tuple:
+    from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES
+
+    base = (("linear", {}), ("pi", {"n_play": 20, "ridge": 1e-3}))
+    if h_model == "auto":
+        return DEFAULT_CANDIDATES
+    if h_model == "modified_pi":
+        own = (("modified_pi", {"n_play": cfg.n_play, "n_sup": cfg.n_sup, "creep": cfg.creep,
+                                "n_creep": cfg.n_creep, "solver": cfg.solver, "fit_z0": cfg.fit_z0}),)
+    elif h_model == "linear":
+        own = ()
+    else:
+        own = tuple(c for c in DEFAULT_CANDIDATES if c[0] == h_model) or ((h_model, {}),)
+    return base + own
+
+
+def _force_only_selected(table: list, kind: str) -> list:
+    """Re-mark the selection table when the configuration names one model kind: its best variant is used."""
+    own = [r for r in table if r["kind"] == kind and np.isfinite(r["cv_rms_mean_v"])]
+    if not own:
+        return table
+    best = min(own, key=lambda r: r["cv_rms_mean_v"])
+    for r in table:
+        r["selected"] = r is best
+    return table
 
 
 @dataclass
@@ -283,6 +342,7 @@ class SelfSensingEstimator:
     ranges_: dict = field(default_factory=dict, init=False)
     fit_report_: dict = field(default_factory=dict, init=False)
     calibration_trials_: list = field(default_factory=list, init=False)
+    leakage_s_: float = field(default=0.0, init=False)
     _extra_names: list = field(default_factory=list, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
@@ -343,43 +403,124 @@ class SelfSensingEstimator:
             slope = factor / (n_A * C_p)
             self.onsite_ = {"alpha": alpha, "B": B, "A_q": A_q, "factor": factor}
         self.h_slope_ = float(slope)
-        if cfg.h_model == "ri":
-            # RI model (third seed) + creep bank: linear in its parameters, fitted jointly on ALL free-tip
-            # calibration trials (each from the relaxed state the relay establishes)
-            from selfsense.sensing.hmodels import fit_ri_creep
-
-            segs = []
-            for tid in free.index:
-                d = cal_trials[tid]
-                d = d[d["relay"].to_numpy() < 0.5]
-                segs.append((d["q"].to_numpy(), h_target(d["V"].to_numpy(), d["q"].to_numpy(), slope)))
-            t = df_free["t"].to_numpy()
-            dt = float(np.median(np.diff(t)))
-            n_creep = cfg.n_creep if cfg.n_creep != "auto" else auto_creep_count(dt * max(len(q) for q, _ in segs), dt)
-            t0 = time.perf_counter()
-            self.hysteresis_, rep = fit_ri_creep(segs, dt, n_thresholds=cfg.n_creep_thresholds,
-                                                 n_creep=int(n_creep), creep=cfg.creep)
-            Q, y = segs[0]
-            pred = self.hysteresis_(Q)
-            rng = float(np.ptp(y)) or 1.0
-            rep.update({"rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
-                        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
-                        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))), "n_creep": int(n_creep),
-                        "h_model": "ri", "trials": list(free.index)})
-            log.info("H(q) fit: RI + creep on %d free-tip trials, %.2f s, RMS %.3f %% of range on %s", len(segs),
-                     time.perf_counter() - t0, rep["rms_pct"], free_id)
-        else:
-            df_fit = _decimate(df_free[act], cfg.max_fit_samples)
-            t = df_fit["t"].to_numpy()
-            dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
-            Q = df_fit["q"].to_numpy()
-            y = h_target(df_fit["V"].to_numpy(), Q, slope)
-            self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
+        self.hysteresis_, rep = self._identify_h(cal_trials, cal, free, slope)
         rep["trial"] = free_id
-        rep["n_samples_fit"] = int(len(Q))
-        self.fit_report_ = {"hysteresis": rep}
+        self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
         self._fit_ranges(cal_trials, cal)
         return self
+
+    # ------------------------------------------------------------------ H(q) identification
+    def _h_segments(self, cal_trials, cal, slope, g_leak):
+        """Calibration rows of the joint H(q) fit: every free-tip trial (V_p = slope Q in the eq. 55 gauge, f = 0)
+        and every trial with a force reference (V_p shifted by f / B22: a column -f_ref), relay excluded."""
+        qs, ys, ex, free, names, dts = [], [], [], [], [], []
+        for tid, row in cal.iterrows():
+            if not (row["tip"] == "free" or row["reference"] == "force"):
+                continue
+            df = cal_trials[tid]
+            m = df["relay"].to_numpy() < 0.5
+            Q = self._charge(df, g_leak)[m]
+            y = h_target(df["V"].to_numpy()[m], Q, slope)
+            if row["reference"] == "force":
+                f = df["f_ref"].to_numpy(dtype=float)[m]
+                if not np.isfinite(f).all():
+                    f = np.where(np.isfinite(f), f, 0.0)
+            else:
+                f = np.zeros(len(Q))
+            qs.append(Q); ys.append(y); ex.append(-f[:, None]); free.append(row["tip"] == "free"); names.append(tid)
+            dts.append(_trial_dt(df))
+        return qs, ys, ex, np.asarray(free, bool), names, float(np.median(dts))
+
+    def _leakage(self, cal_trials, cal, slope) -> tuple[float, dict]:
+        """Leakage conductance g [S] of the actuator set from the calibration trials: the g that makes the joint
+        H(q) fit of a reference Preisach model best on the corrected charge Q - g int V dt (bounded 0..50 nS).
+        Used only if it lowers the blocked-CV error by >= 2 % (else the data do not support it: g = 0, reported)."""
+        from scipy.optimize import minimize_scalar
+
+        from selfsense.hysteresis.models import PreisachH
+        from selfsense.hysteresis.models.select import blocked_folds
+
+        def cv(g):
+            qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g)
+            m = PreisachH(n_grid=10, n_play=6, ridge=1e-4)
+            from selfsense.hysteresis.models.select import _cv_linear, _stack_extra
+            folds = blocked_folds([len(q) for q in qs], 3)
+            return float(np.mean(_cv_linear(m, qs, ys, dt, _stack_extra(ex, [len(q) for q in qs]), folds, 8)))
+
+        base = cv(0.0)
+        res = minimize_scalar(cv, bounds=(0.0, 50e-9), method="bounded", options={"xatol": 0.02e-9, "maxiter": 25})
+        g, best = float(res.x), float(res.fun)
+        info = {"leakage_s": g, "cv_rms_v_without": base, "cv_rms_v_with": best}
+        if not best < 0.98 * base:
+            info["note"] = ("leakage compensation not supported by the calibration data (CV gain < 2 %): "
+                            "no compensation applied")
+            info["applied"] = False
+            return 0.0, info
+        info["applied"] = True
+        return g, info
+
+    def _identify_h(self, cal_trials, cal, free, slope):
+        """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
+        identified jointly on free-tip and force-reference calibration trials, after leakage compensation."""
+        from selfsense.hysteresis.models.select import select_h_model
+
+        cfg = self.config
+        t0 = time.perf_counter()
+        self.leakage_s_ = 0.0
+        drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
+        if cfg.drift == "auto":
+            self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
+        qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
+        if not free_mask.any():
+            raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
+        sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=_candidates_for(cfg.h_model, cfg),
+                             n_blocks=int(cfg.cv_blocks), trial_names=names)
+        model = sel.model
+        if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
+            from selfsense.hysteresis.models import make_model
+
+            table = _force_only_selected(sel.table, cfg.h_model)
+            chosen = next(r for r in table if r["selected"])
+            model = make_model(chosen["kind"], **chosen["params"])
+            i0 = int(np.flatnonzero(free_mask)[0])
+            if chosen["kind"] == "modified_pi":
+                model.fit(qs[i0], ys[i0], dt)
+            else:
+                model.fit(qs, ys, dt, extra=ex)
+            sel.table = table
+            lin = next(r for r in table if r["kind"] == "linear")
+            if not chosen["cv_rms_mean_v"] < lin["cv_rms_mean_v"]:
+                sel.warnings.append(f"H(q) on calibration trials {names}: the configured {chosen['label']} does not "
+                                    f"beat a straight line out of sample ({chosen['cv_rms_mean_v']:.4g} V vs "
+                                    f"{lin['cv_rms_mean_v']:.4g} V): expect poor force estimates")
+                log.warning(sel.warnings[-1])
+        rms = []
+        for q, y, e in zip(qs, ys, ex):
+            pred = model.predict(q, dt)
+            rms.append(float(np.sqrt(np.mean((pred - y + (e @ sel.extra_coef[:e.shape[1]] if
+                                                           len(sel.extra_coef) else 0.0)) ** 2))))
+        y0 = ys[int(np.flatnonzero(free_mask)[0])]
+        rng = float(np.ptp(y0)) or 1.0
+        rep = {"h_model": cfg.h_model, "selected": model.label(), "kind": model.kind,
+               "trials": names, "selection": sel.table, "warnings": list(sel.warnings),
+               "rms_v": float(np.sqrt(np.mean(np.square(rms)))), "rms_v_per_trial": dict(zip(names, rms)),
+               "rms_pct": float(rms[int(np.flatnonzero(free_mask)[0])] / rng * 100), "dt_s": dt,
+               "drift": drift_info, "extra_coef": [float(c) for c in sel.extra_coef],
+               "n_samples_fit": int(sum(len(q) for q in qs))}
+        log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
+                 time.perf_counter() - t0, self.leakage_s_)
+        return model, rep
+
+    def _charge(self, df: pd.DataFrame, g_leak: float | None = None) -> np.ndarray:
+        """Measured charge corrected for the leakage conductance (``Q - g int V dt``) [C]."""
+        g = self.leakage_s_ if g_leak is None else g_leak
+        Q = df["q"].to_numpy(dtype=float)
+        if g:
+            Q = Q - g * integral_v(df)
+        return Q
+
+    def _h(self, Q: np.ndarray, df: pd.DataFrame) -> np.ndarray:
+        return _eval_h(self.hysteresis_, Q, _trial_dt(df))
 
     def fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
         """Regress the sensing coefficients (thesis eq. 52, or eq. 46 with ``regression='full'``) on calibration
@@ -466,8 +607,8 @@ class SelfSensingEstimator:
         return df
 
     def _regressors(self, df: pd.DataFrame) -> np.ndarray:
-        Q = df["q"].to_numpy(dtype=float)
-        V_p = df["V"].to_numpy(dtype=float) - _eval_h(self.hysteresis_, Q)
+        Q = self._charge(df)
+        V_p = df["V"].to_numpy(dtype=float) - self._h(Q, df)
         cols = [Q, V_p]
         names = []
         for aug in self.augmentations:
@@ -533,6 +674,7 @@ class SelfSensingEstimator:
             "ranges": self.ranges_,
             "fit_report": self.fit_report_,
             "calibration_trials": self.calibration_trials_,
+            "leakage_s": self.leakage_s_,
         }
 
     @classmethod
@@ -545,4 +687,5 @@ class SelfSensingEstimator:
         est.ranges_ = dict(d["ranges"])
         est.fit_report_ = dict(d.get("fit_report", {}))
         est.calibration_trials_ = list(d.get("calibration_trials", []))
+        est.leakage_s_ = float(d.get("leakage_s", 0.0))
         return est

@@ -18,7 +18,8 @@ Physical ranges (per device, uniform unless stated):
   counter-clockwise (50 / 50); a remanent preload (prior excursion to 0.3-0.8 q_ref, 50 %);
 * electrical creep weights x 0.5-1.5 and time constants x 0.7-1.4 of the default device;
 * the catalog values written to rig.yaml differ from the truth by up to +-20 % (a catalog is not the device);
-  ``tip_free_displacement_m`` is "measured once" by a simulated quasi-static 150 V stroke;
+  ``tip_free_displacement_m`` is "measured once" by a simulated quasi-static 150 V stroke S; the tip opening is
+  S + 1 mm and the two objects are sized to touch at 35 % and 65 % of the stroke the drive reaches;
 * the rig's in-amp gain is chosen for the device (peak shunt voltage about 4 V at the ADC), at most 5;
 * drives: base frequency 0.4-0.6 Hz, amplitude 120-150 V.
 
@@ -154,7 +155,7 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
     ec_w = rng.uniform(0.5, 1.5)
     ec_t = rng.uniform(0.7, 1.4)
     cat = [1.0 + _u(rng, "catalog_error") for _ in range(4)]
-    opening = stroke + rng.uniform(0.3e-3, 1.0e-3)
+    opening = stroke + 1.0e-3   # provisional; set from the measured stroke below
     dev = {
         "n_actuators": n, "alpha_n_per_v": alpha, "cp_f": cp, "k_act_n_per_m": k,
         "mech_ratio": ratio, "mech_k_tip_n_per_m": k_tip, "mech_k_in_free_n_per_m": kin,
@@ -183,7 +184,7 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
                         "creep": _u(rng, "creep")})
     freq = _u(rng, "freq_hz")
     amp = _u(rng, "amplitude_v")
-    return {
+    sc = {
         "name": f"{family}_{preset}_{seed}",
         "seed": int(seed),
         "sample_rate_hz": 1000.0,
@@ -191,12 +192,22 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
         "device": dev,
         "effects_defaults": False,
         "effects": effects,
-        "trials": device_trials(freq, amp),
+        "trials": [],
         "description": f"virtual device: {family} truth hysteresis, preset {preset}, seed {seed}",
     }
+    # the free stroke the user "measures once" at 150 V; the tip opens 1 mm wider; the two objects are sized to
+    # touch at 35 % and 65 % of the stroke the drive amplitude reaches (thesis: 4 mm and 2 mm objects)
+    S = measure_free_stroke(sc)
+    dev["tip_free_displacement_m"] = S
+    dev["tip_opening_m"] = S + 1.0e-3
+    s_amp = S * amp / _V
+    large_mm = round((S + 1.0e-3 - 0.35 * s_amp) * 1e3, 3)
+    small_mm = round((S + 1.0e-3 - 0.65 * s_amp) * 1e3, 3)
+    sc["trials"] = device_trials(freq, amp, large_mm, small_mm)
+    return sc
 
 
-def device_trials(freq: float, amp: float) -> list[dict]:
+def device_trials(freq: float, amp: float, large_mm: float = 4.0, small_mm: float = 2.0) -> list[dict]:
     """The thesis' protocol (000_18d138f03f1777c3.txt sec. 5.2) shortened for benchmarks: free-tip sine and mixed
     and blocked-tip sine calibration, then 3 displacement and 3 force validation trials (free / object / blocked)."""
     f = round(freq, 4)
@@ -210,15 +221,15 @@ def device_trials(freq: float, amp: float) -> list[dict]:
          "signal": "mixed", "duration": 16, "freq": f, "amplitude": a},
         {"trial": "val_disp_free_mixed", "role": "validation", "tip": "free", "reference": "displacement",
          "signal": "mixed", "duration": 12, "freq": round(f * 1.1, 4), "amplitude": a},
-        {"trial": "val_disp_small_sine", "role": "validation", "tip": "object", "object_mm": 2.0,
+        {"trial": "val_disp_small_sine", "role": "validation", "tip": "object", "object_mm": small_mm,
          "reference": "displacement", "signal": "sine", "duration": 12, "freq": f, "amplitude": a},
-        {"trial": "val_disp_large_mixed", "role": "validation", "tip": "object", "object_mm": 4.0,
+        {"trial": "val_disp_large_mixed", "role": "validation", "tip": "object", "object_mm": large_mm,
          "reference": "displacement", "signal": "mixed", "duration": 12, "freq": f, "amplitude": a},
         {"trial": "val_force_blocked_sine", "role": "validation", "tip": "blocked", "reference": "force",
          "signal": "sine", "duration": 12, "freq": round(f * 0.9, 4), "amplitude": a},
-        {"trial": "val_force_large_mixed", "role": "validation", "tip": "object", "object_mm": 4.0,
+        {"trial": "val_force_large_mixed", "role": "validation", "tip": "object", "object_mm": large_mm,
          "reference": "force", "signal": "mixed", "duration": 12, "freq": f, "amplitude": a},
-        {"trial": "val_force_small_sine", "role": "validation", "tip": "object", "object_mm": 2.0,
+        {"trial": "val_force_small_sine", "role": "validation", "tip": "object", "object_mm": small_mm,
          "reference": "force", "signal": "sine", "duration": 12, "freq": f, "amplitude": a},
     ]
 

@@ -1,0 +1,112 @@
+"""Compiled kernels of the H(q) model registry: Preisach grid features and creep (relaxation) filters.
+
+Preisach grid (Mayergoyz's Preisach operator with a density that is constant on the cells of a uniform grid of
+the (alpha, beta) half-plane alpha >= beta, alpha = up-switching and beta = down-switching threshold): the
+output is ``y = sum_c w_c F_c(t)`` where ``F_c`` is the fraction of cell ``c`` whose relays are "up" at time t.
+The up-region is ``{(a, b): b < g(a)}`` with ``g`` a non-increasing staircase kept as a stack of dominant maxima
+``M_j`` (decreasing) and minima ``m_j`` (increasing) -- the wiping-out property; the area of each cell inside it
+is integrated exactly, so the output is continuous (piecewise quadratic) in the input. All relays start "down"
+(the relaxed state that the relay of the charge circuit establishes, thesis 000_18d138f03f1777c3.txt sec. 5.1.1).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["preisach_grid_features", "relaxation_bank"]
+
+_BIG = 1e300
+
+
+@njit(cache=True)
+def _prim(x, b0, top):
+    """Integral from -inf to x of (clip(a, b0, top) - b0) da (top > b0)."""
+    if x <= b0:
+        return 0.0
+    if x <= top:
+        return 0.5 * (x - b0) * (x - b0)
+    return 0.5 * (top - b0) * (top - b0) + (top - b0) * (x - top)
+
+
+@njit(cache=True)
+def preisach_grid_features(u, lo, hi, n):
+    """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it).
+
+    Cell (i, j), j <= i, covers a in [g_i, g_i+1], b in [g_j, g_j+1] (half of it when i == j); its feature is the
+    up-fraction of its area, in [0, 1]."""
+    N = u.size
+    nc = n * (n + 1) // 2
+    F = np.zeros((N, nc))
+    h = (hi - lo) / n
+    Ms = np.empty(4096)
+    ms = np.empty(4096)
+    K = 0
+    prev = lo
+    for k in range(N):
+        x = min(max(u[k], lo), hi)
+        if k == 0 or x > prev:
+            # ascending: relays with a <= x switch up; pairs with M_j <= x are wiped out
+            while K > 0 and Ms[K - 1] <= x:
+                K -= 1
+            if K < 4096:
+                Ms[K] = x
+                ms[K] = _BIG
+                K += 1
+        elif x < prev:
+            # descending: relays with b >= x switch down: g := min(g, x); pairs after the first m_j >= x go
+            j = 0
+            while j < K and ms[j] < x:
+                j += 1
+            if j < K:
+                ms[j] = x
+                K = j + 1
+        prev = x
+        # cell areas
+        c = 0
+        for i in range(n):
+            a0 = lo + i * h
+            a1 = a0 + h
+            for jb in range(i + 1):
+                b0 = lo + jb * h
+                b1 = b0 + h
+                area = 0.0
+                # pieces of g over [a0, a1]: g = ms[j] on (Ms[j+1], Ms[j]], -inf above Ms[0]
+                for jj in range(K):
+                    p1 = Ms[jj]
+                    p0 = Ms[jj + 1] if jj + 1 < K else -_BIG
+                    if p1 <= a0:
+                        break
+                    if p0 >= a1:
+                        continue
+                    q0 = max(p0, a0)
+                    q1 = min(p1, a1)
+                    top = min(ms[jj], b1)
+                    if top <= b0:
+                        continue
+                    area += _prim(q1, b0, top) - _prim(q0, b0, top)
+                full = h * h if jb < i else 0.5 * h * h
+                F[k, c] = area / full
+                c += 1
+    return F
+
+
+@njit(cache=True)
+def _relax(u, g):
+    z = 0.0
+    out = np.empty(u.size)
+    for k in range(u.size):
+        z += g * (u[k] - z)
+        out[k] = u[k] - z
+    return out
+
+
+def relaxation_bank(u, dt: float, tau_s) -> np.ndarray:
+    """Creep columns ``u - z_j``, ``dz_j/dt = (u - z_j) / tau_j`` discretised exactly at the sample time ``dt`` [s]
+    (``z_j(0) = 0``, the relaxed state): Kuhnen's creep operator (thesis 000_18d138f03f1777c3.txt eqs. 38-41) with
+    a zero threshold, its eigenvalues ``1 / tau_j`` kept in 1/s so that the model is the same at any sample rate
+    (CALIBRATION_NOTES item 8). Returns (len(u), len(tau_s))."""
+    u = np.ascontiguousarray(u, dtype=float)
+    cols = [_relax(u, -math.expm1(-dt / float(t))) for t in tau_s]
+    return np.column_stack(cols) if cols else np.zeros((u.size, 0))

@@ -1,0 +1,181 @@
+"""Choice of the H(q) model family and its regularisation by blocked cross-validation on calibration trials only.
+
+Each calibration trial is cut into ``n_blocks`` contiguous blocks; fold k leaves block k of *every* trial out. The
+operators always run over the whole record from the relaxed state (their state depends on the input history, which
+is measured), only the rows that enter the least-squares fit are restricted: this is the blocked CV of
+time-series models (no leakage of the held-out *output*). The score is the RMS of the held-out residual [V].
+
+Every selection table contains the straight line (``linear``) and the signed-weight PI baseline; a selected model
+that does not beat the straight line out of sample raises :class:`DegenerateFitError`, one that does not beat the
+PI baseline is reported with a warning (``warnings`` of the result), naming the trials.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import DegenerateFitError, LinearParamH, make_model, ridge_lstsq
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DEFAULT_CANDIDATES", "SelectionResult", "select_h_model", "blocked_folds"]
+
+#: (kind, hyper-parameters): the search space of ``h_model: auto``
+DEFAULT_CANDIDATES: tuple = (
+    ("linear", {}),
+    ("pi", {"n_play": 20, "ridge": 1e-3}),
+    ("preisach", {"n_grid": 12, "n_play": 0, "ridge": 1e-4}),
+    ("preisach", {"n_grid": 12, "n_play": 10, "ridge": 1e-4}),
+    ("preisach", {"n_grid": 16, "n_play": 10, "ridge": 1e-3}),
+    ("ri", {"ridge": 1e-8}),
+)
+
+
+@dataclass
+class SelectionResult:
+    model: object                      # the selected model, refitted on all calibration rows
+    extra_coef: np.ndarray             # coefficients of the extra (joint) columns
+    table: list = field(default_factory=list)   # one dict per candidate: kind, label, fold RMS, mean, selected
+    warnings: list = field(default_factory=list)
+
+
+def blocked_folds(lengths, n_blocks: int) -> list[np.ndarray]:
+    """Boolean held-out masks over the stacked rows: fold k holds out the k-th contiguous block of every segment."""
+    n = int(sum(lengths))
+    folds = []
+    for k in range(n_blocks):
+        m = np.zeros(n, bool)
+        off = 0
+        for L in lengths:
+            edges = np.linspace(0, L, n_blocks + 1).astype(int)
+            m[off + edges[k]:off + edges[k + 1]] = True
+            off += L
+        folds.append(m)
+    return folds
+
+
+def _stack_extra(extras, lengths):
+    if extras is None:
+        return None
+    return np.vstack([np.asarray(e, float).reshape(L, -1) for e, L in zip(extras, lengths)])
+
+
+def _cv_linear(model: LinearParamH, qs, ys, dt, E, folds, thin):
+    model.prepare(qs, dt)
+    Xs, pen = [], None
+    for q in qs:
+        X, pen = model.design(q, dt)
+        Xs.append(X)
+    X = np.vstack(Xs)
+    if E is not None:
+        X = np.column_stack([X, E])
+        pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
+    y = np.concatenate(ys)
+    keep = np.zeros(len(y), bool)
+    keep[::thin] = True
+    rms = []
+    for held in folds:
+        tr = keep & ~held
+        w = ridge_lstsq(X[tr], y[tr], pen, model.ridge)
+        ev = held & keep
+        rms.append(float(np.sqrt(np.mean((X[ev] @ w - y[ev]) ** 2))))
+    return rms
+
+
+def _split(E, lengths):
+    out, off = [], 0
+    for L in lengths:
+        out.append(E[off:off + L])
+        off += L
+    return out
+
+
+def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
+    """CV of a model without extra columns (modified PI): fitted on the first free-tip segment's training rows,
+    then the extra columns regressed on the residual of the training rows of all segments."""
+    lengths = [len(q) for q in qs]
+    i0 = int(np.flatnonzero(free)[0])
+    off0 = int(sum(lengths[:i0]))
+    y = np.concatenate(ys)
+    keep = np.zeros(len(y), bool)
+    keep[::thin] = True
+    rms = []
+    from selfsense.hysteresis.identify import fit_modified_pi_robust  # noqa: F401  (import errors surface here)
+
+    for held in folds:
+        m = (~held)[off0:off0 + lengths[i0]]
+        model.fit_masked(qs[i0], ys[i0], dt, m)
+        pred = np.concatenate([model.predict(q, dt) for q in qs])
+        r = y - pred
+        tr = keep & ~held
+        if E is not None:
+            c, *_ = np.linalg.lstsq(E[tr], r[tr], rcond=None)
+            r = r - E @ c
+        ev = held & keep
+        rms.append(float(np.sqrt(np.mean(r[ev] ** 2))))
+    return rms
+
+
+def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
+                   thin: int = 4, trial_names=None, baseline_only_warn: bool = True) -> SelectionResult:
+    """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
+    columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
+
+    ``free``: boolean per segment, the free-tip segments (a model without extra-column support is fitted on the
+    first of them). ``trial_names``: used in warnings and errors."""
+    qs = [np.asarray(q, float) for q in qs]
+    ys = [np.asarray(y, float) for y in ys]
+    lengths = [len(q) for q in qs]
+    free = np.ones(len(qs), bool) if free is None else np.asarray(free, bool)
+    names = list(trial_names) if trial_names is not None else [f"segment {i}" for i in range(len(qs))]
+    E = _stack_extra(extras, lengths)
+    folds = blocked_folds(lengths, n_blocks)
+    table = []
+    for kind, params in candidates:
+        model = make_model(kind, **params)
+        try:
+            if isinstance(model, LinearParamH):
+                rms = _cv_linear(model, qs, ys, dt, E, folds, thin)
+            else:
+                rms = _cv_qp(model, qs, ys, dt, E, folds, free, thin)
+            status = "ok"
+        except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
+            rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+        table.append({"kind": kind, "params": dict(params), "label": model.label(),
+                      "cv_rms_v": [float(r) for r in rms],
+                      "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
+                      "status": status, "selected": False})
+    ok = [r for r in table if np.isfinite(r["cv_rms_mean_v"])]
+    if not ok:
+        raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
+                                 f"{names}: " + "; ".join(f"{r['label']}: {r['status']}" for r in table))
+    best = min(ok, key=lambda r: r["cv_rms_mean_v"])
+    best["selected"] = True
+    warnings = []
+    lin = next((r for r in ok if r["kind"] == "linear"), None)
+    pis = [r for r in ok if r["kind"] == "pi"]
+    if lin is not None and best is not lin and not best["cv_rms_mean_v"] < lin["cv_rms_mean_v"]:
+        raise DegenerateFitError(f"H(q) on calibration trials {names}: {best['label']} does not beat a straight line "
+                                 f"out of sample ({best['cv_rms_mean_v']:.4g} V vs {lin['cv_rms_mean_v']:.4g} V)")
+    if best["kind"] == "linear":
+        warnings.append(f"H(q) on calibration trials {names}: no hysteresis model beats a straight line out of "
+                        f"sample ({best['cv_rms_mean_v']:.4g} V RMS); H is linear (no hysteresis identified)")
+    if pis and best["kind"] != "pi" and not best["cv_rms_mean_v"] < min(r["cv_rms_mean_v"] for r in pis):
+        warnings.append(f"H(q) on {names}: {best['label']} does not beat the PI baseline out of sample")
+    for w in warnings:
+        log.warning(w)
+    model = make_model(best["kind"], **best["params"])
+    if isinstance(model, LinearParamH):
+        model.fit(qs, ys, dt, extra=None if E is None else _split(E, lengths))
+        extra_coef = model.extra_coef_
+    else:
+        i0 = int(np.flatnonzero(free)[0])
+        model.fit(qs[i0], ys[i0], dt)
+        if E is not None:
+            r = np.concatenate(ys) - np.concatenate([model.predict(q, dt) for q in qs])
+            extra_coef, *_ = np.linalg.lstsq(E, r, rcond=None)
+        else:
+            extra_coef = np.zeros(0)
+    return SelectionResult(model=model, extra_coef=np.asarray(extra_coef, float), table=table, warnings=warnings)
