@@ -329,8 +329,16 @@ class ModifiedPIH:
                                                   solver=self.solver, fit_z0=self.fit_z0, row_mask=row_mask)
         self.sign_, self.c_, self.dt_ = float(sign), float(c), float(dt)
         pred = self.predict(Q)
+        keep = np.ones(len(Q), bool) if row_mask is None else np.asarray(row_mask, bool)
+        rms = float(np.sqrt(np.mean((pred - y)[keep] ** 2)))
+        lin = LinearH().fit(Q[keep], y[keep], dt)
+        rms_lin = float(np.sqrt(np.mean((lin.predict(Q[keep]) - y[keep]) ** 2)))
+        if not rms < rms_lin:
+            raise DegenerateFitError(
+                f"modified PI: the QP returned status {rep.get('status')!r} for a fit worse than a straight line "
+                f"({rms:.4g} V RMS vs {rms_lin:.4g} V, in sample): a degenerate fit (CALIBRATION_NOTES item 7)")
         self.fit_report_ = dict(rep)
-        self.fit_report_.update({"rms_v": float(np.sqrt(np.mean((pred - y) ** 2))), "gauge_sign": self.sign_,
+        self.fit_report_.update({"rms_v": rms, "rms_v_linear": rms_lin, "gauge_sign": self.sign_,
                                  "gauge_c": self.c_, "n_creep": int(n_creep), "n_samples": int(len(y))})
         return self
 
