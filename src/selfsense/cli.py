@@ -30,6 +30,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "ri": ("selfsense.hysteresis.ri_cli", "main", "RI hysteresis model checks against published data"),
     "fit-external": ("selfsense.hysteresis.external", "main",
                      "fit the hysteresis models to the external measured data sets"),
+    "devices": ("selfsense.devices", "main",
+                "cross-device accuracy benchmark: Table 3 on virtual devices of several hysteresis families"),
 }
 
 

@@ -126,3 +126,122 @@ def write_record(rec: Mapping[str, Any], path: str | Path) -> None:
     from selfsense.io import write_text_atomic
 
     write_text_atomic(json.dumps(rec, indent=1, sort_keys=True, default=float) + "\n", path)
+
+
+def _config_from(path: str | None) -> dict:
+    if not path:
+        return _default_pipeline_config()
+    import yaml
+
+    with open(path) as fh:
+        cfg = yaml.safe_load(fh) or {}
+    return {"calibration": dict(cfg.get("calibration", {}) or {}), "estimation": dict(cfg.get("estimation", {}) or {})}
+
+
+def _job(args):
+    family, preset, seed, cfg, out = args
+    rec = run_device(family, preset, seed, cfg)
+    write_record(rec, out)
+    return rec
+
+
+def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
+          first_seed: int = 0, progress: bool = True) -> pd.DataFrame:
+    """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
+    file per device under ``out_dir/records`` (existing records are reused: resumable), then write
+    ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    out_dir = Path(out_dir)
+    rec_dir = out_dir / "records"
+    rec_dir.mkdir(parents=True, exist_ok=True)
+    todo, recs = [], []
+    for fam in families:
+        for pre in presets:
+            for seed in range(first_seed, first_seed + n):
+                p = rec_dir / f"{fam}_{pre}_{seed}.json"
+                if p.exists():
+                    recs.append(json.loads(p.read_text()))
+                else:
+                    todo.append((fam, pre, seed, config, str(p)))
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from tqdm import tqdm
+
+    with ProcessPoolExecutor(max(1, int(jobs))) as ex:
+        for rec in tqdm(ex.map(_job, todo), total=len(todo), desc="devices", unit="device",
+                        disable=None if progress else True):
+            recs.append(rec)
+    write_tables(recs, out_dir)
+    return aggregate(recs)
+
+
+def write_tables(recs, out_dir: str | Path) -> None:
+    from selfsense.io import write_text_atomic
+
+    out_dir = Path(out_dir)
+    df = pd.DataFrame(recs).sort_values(["family", "preset", "seed"])
+    agg = aggregate(recs)
+    write_text_atomic(df.drop(columns=[c for c in ("warnings",) if c in df]).to_csv(index=False, float_format="%.6g"),
+                      out_dir / "records.csv")
+    write_text_atomic(agg.to_csv(index=False, float_format="%.6g"), out_dir / "cross_device.csv")
+    write_text_atomic(
+        "# Cross-device accuracy (thesis Table 3 per device family and preset)\n\n"
+        "Validation trials, mean |estimate - reference| / reference range per trial, then the mean over trials of "
+        "each measurement (Table 3), per device; median and 90th percentile over devices.\n\n"
+        + aggregate_markdown(agg), out_dir / "cross_device.md")
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from selfsense.sim.families import FAMILIES, PRESETS
+
+    ap = argparse.ArgumentParser(prog="selfsense devices", allow_abbrev=False,
+                                 description="Cross-device accuracy benchmark: Table 3 on virtual devices of several "
+                                             "truth hysteresis families (selfsense.sim.families).")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="simulate and score one device (one Snakemake job)", allow_abbrev=False)
+    r.add_argument("--family", required=True, choices=FAMILIES, help="truth hysteresis family")
+    r.add_argument("--preset", default="clean", choices=PRESETS, help="clean, or drift (leakage + offset + creep)")
+    r.add_argument("--seed", type=int, required=True, help="device seed (draws its constants)")
+    r.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    r.add_argument("--out", required=True, help="record file (JSON) to write")
+    t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
+    t.add_argument("records", nargs="+", help="record JSON files")
+    t.add_argument("--out", required=True, help="folder for cross_device.md / .csv and records.csv")
+    b = sub.add_parser("bench", help="run many devices in parallel and aggregate (resumable)", allow_abbrev=False)
+    b.add_argument("--n", type=int, default=10, help="devices per family and preset (default 10)")
+    b.add_argument("--families", default=",".join(FAMILIES), help="comma-separated families (default all)")
+    b.add_argument("--presets", default=",".join(PRESETS), help="comma-separated presets (default all)")
+    b.add_argument("--jobs", type=int, default=2, help="parallel processes (default 2)")
+    b.add_argument("--first-seed", type=int, default=0, help="first device seed (default 0)")
+    b.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
+    a = ap.parse_args(argv)
+    try:
+        if a.cmd == "run":
+            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile))
+            write_record(rec, a.out)
+            print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
+                  f"force {rec['force_pct']:.2f} % ({rec['status']})")
+        elif a.cmd == "table":
+            recs = [json.loads(Path(p).read_text()) for p in a.records]
+            write_tables(recs, a.out)
+            print(Path(a.out) / "cross_device.md")
+        else:
+            fams = [f for f in a.families.split(",") if f]
+            pres = [p for p in a.presets.split(",") if p]
+            for f in fams:
+                if f not in FAMILIES:
+                    raise ValueError(f"--families: unknown family {f!r}; expected some of {', '.join(FAMILIES)}")
+            for p in pres:
+                if p not in PRESETS:
+                    raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
+            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed)
+            print(Path(a.out) / "cross_device.md")
+    except (ValueError, OSError) as exc:
+        print(f"selfsense devices: error: {exc}", file=__import__("sys").stderr)
+        return 2
+    return 0

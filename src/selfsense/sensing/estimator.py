@@ -36,6 +36,7 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import pandas as pd
 
+from selfsense.sensing.core import force_coefficients, h_target, piezo_voltage, tip_displacement, tip_force
 from selfsense.signals import limit_to_range, sliding_dc_offset
 
 log = logging.getLogger(__name__)
@@ -138,21 +139,7 @@ def _rig_params(rig: Any) -> dict[str, float]:
     }
 
 
-def h_target(V: np.ndarray, Q: np.ndarray, slope: float) -> np.ndarray:
-    """Free-tip calibration target of H: ``V_H = V - slope * Q``.
-
-    ``slope = 1 / (n_A C_p)`` gives thesis eq. (55); ``slope = (1 - alpha B A_q) / (n_A C_p)`` gives paper eq. (23)
-    written for the total charge ``Q = n_A q``.
-    """
-    return np.asarray(V, dtype=float) - slope * np.asarray(Q, dtype=float)
-
-
-def loop_orientation(x: np.ndarray, y: np.ndarray) -> float:
-    """+1 if the (x, y) loops run counter-clockwise overall (shoelace signed area > 0), else -1."""
-    x = np.asarray(x, float)
-    y = np.asarray(y, float)
-    area = 0.5 * float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]))
-    return 1.0 if area >= 0 else -1.0
+from selfsense.hysteresis.models import loop_orientation  # noqa: E402,F401  (public here since v0.1)
 
 
 class GaugedH:
@@ -187,45 +174,6 @@ def auto_creep_count(duration_s: float, dt: float) -> int:
     """Number m of log(t) creep eigenvalues a_j = 1/(10^(j-1) T_s) (thesis eq. 40) whose slowest time constant
     10^(m-1) T_s reaches the calibration trial's duration: m = ceil(log10(duration / T_s)) + 1."""
     return int(np.ceil(np.log10(max(duration_s / dt, 1.0)))) + 1
-
-
-def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
-    """Fit Kuhnen's modified PI operator (thesis App. A) to the H(q) calibration target through the gauge of
-    :class:`GaugedH`; returns (model, report dict)."""
-    t0 = time.perf_counter()
-    n_creep = cfg.n_creep
-    if n_creep == "auto":
-        n_creep = auto_creep_count(dt * len(Q), dt)
-    sign = loop_orientation(Q, y)
-    ys = sign * y
-    slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
-    c = 2.0 * max(0.0, -slope)
-    target = ys + c * Q
-    from selfsense.hysteresis.identify import fit_modified_pi
-
-    inner, rep = fit_modified_pi(
-        Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
-        solver=cfg.solver, fit_z0=cfg.fit_z0,
-    )
-    report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
-    model = GaugedH(inner, sign, c)
-    pred = model(Q)
-    rng = float(np.ptp(y)) or 1.0
-    report.update({
-        "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
-        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
-        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))),
-        "gauge_sign": sign,
-        "gauge_c": c,
-        "n_creep": int(n_creep),
-    })
-    report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
-    # wall-clock time goes to the log, never into an artefact (same input and config -> bit-identical JSON)
-    report.pop("seconds", None)
-    log.info("H(q) fit: %s, %d samples, %.2f s, RMS %.3f %% / max %.3f %% of range", cfg.h_model, len(Q),
-             time.perf_counter() - t0, report["rms_pct"], report["max_pct"])
-    report["h_model"] = cfg.h_model
-    return model, report
 
 
 def _h_to_dict(model) -> dict:
@@ -311,7 +259,7 @@ def _candidates_for(h_model: str, cfg: "SensingConfig") -> tuple:
     return base + own
 
 
-def _insample(model, qs, ys, dt, E, thin: int = 8) -> float:
+def _insample(model, qs, ys, dt, E, thin: int = 16) -> float:
     """RMS [V] of the least-squares residual of ``model`` on every ``thin``-th calibration row (leakage search)."""
     from selfsense.hysteresis.models import ridge_lstsq
 
@@ -489,7 +437,7 @@ class SelfSensingEstimator:
             m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
             return float(np.mean(_cv_linear(m, qs, ys, dt, E, blocked_folds([len(q) for q in qs], 3), 8)))
 
-        res = minimize_scalar(insample, bounds=(0.0, 50e-9), method="bounded", options={"xatol": 0.02e-9})
+        res = minimize_scalar(insample, bounds=(0.0, 50e-9), method="bounded", options={"xatol": 0.05e-9})
         g = float(res.x)
         base, best = cv(0.0), cv(g)
         info = {"leakage_s": g, "cv_rms_v_without": base, "cv_rms_v_with": best}
@@ -655,8 +603,8 @@ class SelfSensingEstimator:
             Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
             cf = _lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)
-            self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3,
-                          "B21": A3 / n_A, "B22": -C_p * A3}
+            B21, B22 = force_coefficients(A3, n_A, C_p)
+            self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22}
             extra_f = cf[1:]
         else:
             cf = _lstsq(Xf, yf)
@@ -699,7 +647,7 @@ class SelfSensingEstimator:
 
     def _regressors(self, df: pd.DataFrame) -> np.ndarray:
         Q = self._charge(df)
-        V_p = df["V"].to_numpy(dtype=float) - self._h(Q, df)
+        V_p = piezo_voltage(df["V"].to_numpy(dtype=float), self._h(Q, df))   # thesis eq. (27)
         cols = [Q, V_p]
         names = []
         for aug in self.augmentations:
@@ -712,8 +660,8 @@ class SelfSensingEstimator:
 
     def _predict_raw(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = self.coef_
-        dx = c["A1"] * X[:, 0] + c["A2"] * X[:, 1]
-        f = c["B21"] * X[:, 0] + c["B22"] * X[:, 1]
+        dx = tip_displacement(X[:, 0], X[:, 1], c["A1"], c["A2"])   # thesis eq. (52)
+        f = tip_force(X[:, 0], X[:, 1], c["B21"], c["B22"])          # thesis eq. (46) / (52)
         for j, v in enumerate(c.get("extra_dx", {}).values()):
             dx = dx + v * X[:, 2 + j]
         for j, v in enumerate(c.get("extra_f", {}).values()):

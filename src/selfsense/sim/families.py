@@ -11,7 +11,10 @@ Physical ranges (per device, uniform unless stated):
 * actuator set (thesis 000_18d138f03f1777c3.txt eqs. 24-27, 45): ``n_A`` in {3, 4, 5, 6}; transformer ratio
   ``alpha`` 1.5-3.5 N/V; clamped capacitance ``C_p`` 0.15-0.5 uF; stiffness ``k`` 15-40 MN/m;
 * mechanism (two-port, thesis eqs. 17-21): free-tip stroke at 150 V 4-9 mm (sets the transmission ratio),
-  blocked tip force at 150 V 0.05-0.3 N (sets the tip-port stiffness), input compliance ratio
+  coupling ``F_b S / (n_A alpha V x_free)`` 2-8 % (the share of the actuators' blocked-force x stroke product that
+  reaches the tip: it sets the tip-port stiffness and with it how far a blocked tip shifts V_p at equal charge,
+  the signal that force sensing lives on -- CALIBRATION_NOTES item 2; blocked forces then span about
+  0.05-0.6 N), input compliance ratio
   ``k_in_free / (n_A k)`` 0.1-0.4 (how much of the actuators' stroke the mechanism lets through);
 * hysteresis: its swing (peak-to-peak of the hysteretic output on a 0 -> 1 -> 0 charge cycle) 5-18 % of the
   150 V range; the reversible part ``h_lin`` 10-35 % of the ``q / (n_A C_p)`` slope; orientation clockwise or
@@ -47,7 +50,9 @@ RANGES = {
     "cp_f": ((0.15e-6, 0.5e-6), "F", "clamped capacitance C_p of one actuator (thesis eq. 26)"),
     "k_act_n_per_m": ((15e6, 40e6), "N/m", "actuator stiffness"),
     "stroke_m": ((4e-3, 9e-3), "m", "free-tip stroke at 150 V (sets the mechanism ratio)"),
-    "blocked_force_n": ((0.05, 0.3), "N", "blocked tip force at 150 V (sets the tip-port stiffness)"),
+    "coupling": ((0.02, 0.08), "-", "F_b S / (n_A alpha V x_free): blocked-force x free-stroke product at the tip "
+                                    "over that of the actuators (sets the tip-port stiffness; the thesis device: "
+                                    "6-8 % of the actuators' work reaches the tip)"),
     "compliance_ratio": ((0.1, 0.4), "-", "k_in_free / (n_A k): input compliance ratio of the mechanism"),
     "h_swing_frac": ((0.05, 0.18), "-", "hysteretic swing / 150 V"),
     "h_lin_frac": ((0.10, 0.35), "-", "reversible part h_lin / (q_ref / (n_A C_p))"),
@@ -130,11 +135,12 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
     cp = _u(rng, "cp_f")
     k = _u(rng, "k_act_n_per_m")
     stroke = _u(rng, "stroke_m")
-    fb = _u(rng, "blocked_force_n")
+    kappa = _u(rng, "coupling")
     rho = _u(rng, "compliance_ratio")
     kin = rho * n * k
     x_free = n * alpha * _V / (n * k + kin)
     ratio = stroke / x_free
+    fb = kappa * n * alpha * _V * x_free / stroke     # blocked tip force at 150 V [N]
     k_tip = fb / stroke
     q_ref = n * (alpha * x_free + cp * _V)
     swing = _u(rng, "h_swing_frac") * _V

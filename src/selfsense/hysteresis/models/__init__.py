@@ -13,8 +13,8 @@ Every model (scikit-learn style; ``docs/hysteresis.md``):
 
 The models linear in their parameters (``linear``, ``pi``, ``preisach``, ``ri``) share :class:`LinearParamH`:
 a design matrix ``[hysteretic basis | u | creep bank | 1]`` on the normalised charge ``u = (q - q_lo) / q_span``,
-solved as a ridge least-squares problem on the column-scaled design augmented by ``sqrt(ridge N) I`` rows (an SVD
-of the design itself, never the Gram matrix ``X^T X``, which squares its condition number: CALIBRATION_NOTES item 7).
+solved as a ridge least-squares problem on the column-scaled design augmented by ``sqrt(ridge N) I`` rows (a pivoted
+QR of the design itself, never the Gram matrix ``X^T X``, which squares its condition number: CALIBRATION_NOTES item 7).
 Extra columns (``extra``) are fitted jointly and not penalised: the estimator uses them to identify H jointly
 with the force coefficient on blocked-tip trials and with the charge leakage (``selfsense.sensing.core``).
 
@@ -139,7 +139,7 @@ class LinearParamH:
         self.extra_coef_ = coef[len(coef) - nE:]
         resid = X @ coef - y
         self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(resid**2))), "n_samples": int(len(y)),
-                            "n_parameters": int(X.shape[1]), "solver": "SVD least squares (ridge)"}
+                            "n_parameters": int(X.shape[1]), "solver": "pivoted-QR least squares (ridge)"}
         return self
 
     def predict(self, q, dt: float | None = None) -> np.ndarray:
@@ -179,7 +179,8 @@ class LinearParamH:
 
 def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float) -> np.ndarray:
     """``argmin |X w - y|^2 + ridge N |D w|^2`` with ``D`` selecting the penalised columns of the column-scaled X,
-    solved by SVD least squares on the augmented matrix (well-conditioned factor, no normal equations)."""
+    solved by a pivoted-QR least-squares solve of the augmented matrix (well-conditioned factor, no normal
+    equations)."""
     N = X.shape[0]
     s = np.sqrt(np.mean(X**2, axis=0))
     s[~(s > 0)] = 1.0
@@ -192,7 +193,11 @@ def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: floa
         b = np.concatenate([y, np.zeros(idx.size)])
     else:
         A, b = Xs, y
-    w, *_ = np.linalg.lstsq(A, b, rcond=None)
+    from scipy.linalg import lstsq
+
+    # complete orthogonal factorisation (QR with column pivoting, LAPACK gelsy): rank-revealing like an SVD,
+    # several times faster, and never forms X^T X
+    w, *_ = lstsq(A, b, lapack_driver="gelsy", check_finite=False)
     return w / s
 
 

@@ -1,0 +1,107 @@
+"""Truth device families: physics of each family and recovery of its H(q) by the registry's selected model."""
+import numpy as np
+import pytest
+
+from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES, select_h_model
+from selfsense.sim.families import FAMILIES, RANGES, draw_device
+from selfsense.sim.simulate import simulate_scenario_in_memory
+from selfsense.sim.truth import truth_path
+
+CAL = ("cal_free_sine", "cal_blocked_sine", "cal_free_mixed")
+VAL = "val_disp_free_mixed"
+
+
+def _short(sc):
+    """The device's own trials, shortened (the test budget), same protocol."""
+    for tr in sc["trials"]:
+        tr["duration"] = min(tr["duration"], 12)
+    return sc
+
+
+@pytest.fixture(scope="module", params=FAMILIES)
+def device(request):
+    sc = _short(draw_device(request.param, 11, "clean"))
+    res = simulate_scenario_in_memory(sc, only=set(CAL) | {VAL})
+    return request.param, sc, res
+
+
+def test_family_draws_stay_in_their_documented_ranges(device):
+    fam, sc, _ = device
+    d = sc["device"]
+    assert d["h_family"] == fam
+    assert d["n_actuators"] in (3, 4, 5, 6)
+    for key in ("alpha_n_per_v", "cp_f", "k_act_n_per_m"):
+        lo, hi = RANGES[key][0]
+        assert lo <= d[key] <= hi
+    assert d["h_sign"] in (-1.0, 1.0)
+    # the two objects touch within the stroke the drive reaches, the large one first
+    obj = {t["trial"]: t.get("object_mm") for t in sc["trials"]}
+    assert obj["val_disp_large_mixed"] > obj["val_disp_small_sine"]
+    assert d["tip_opening_m"] * 1e3 > obj["val_disp_large_mixed"]
+
+
+def test_family_truth_has_hysteresis_and_no_exactly_linear_branch(device):
+    """V_H(q) on the free calibration trial encloses area (hysteresis) and is not a straight line."""
+    fam, sc, res = device
+    _, tr = res["cal_free_sine"]
+    q, vh = tr["q_act"].to_numpy(), tr["V_H"].to_numpy()
+    area = 0.5 * abs(np.sum(q[:-1] * vh[1:] - q[1:] * vh[:-1]))
+    assert area > 1e-3 * np.ptp(q) * np.ptp(vh)
+    A = np.column_stack([q, np.ones_like(q)])
+    r = vh - A @ np.linalg.lstsq(A, vh, rcond=None)[0]
+    assert np.sqrt(np.mean(r ** 2)) > 0.05   # V
+
+
+#: out-of-sample RMS [V] of the selected model against the truth V_H (up to the linear gauge), per family;
+#: measured on this seed (pytest -s tests/sim/test_families.py -k recovers): preisach 0.009, bouc_wen 0.49,
+#: gpi 0.018, jiles_atherton 0.11 V
+TOL_V = {"preisach": 0.05, "bouc_wen": 0.8, "gpi": 0.08, "jiles_atherton": 0.3}
+
+
+def test_selected_h_recovers_each_family_out_of_sample(device):
+    """Fitted on the calibration trials (noise-free truth signals, eq. 55 gauge, force column on the blocked trial),
+    the selected model predicts the validation trial's V_H up to a linear term within the family's tolerance."""
+    fam, sc, res = device
+    n, C = sc["device"]["n_actuators"], sc["device"]["catalog_capacitance_f"]
+    qs, ys, ex, free = [], [], [], []
+    for t in CAL:
+        _, tr = res[t]
+        m = tr["t"].to_numpy() > 0.75
+        q, V, f = tr["q"].to_numpy()[m], tr["V"].to_numpy()[m], tr["f_tip"].to_numpy()[m]
+        qs.append(q)
+        ys.append(V - q / (n * C))
+        ex.append((-f if "blocked" in t else 0 * f)[:, None])
+        free.append("free" in t)
+    sel = select_h_model(qs, ys, 1e-3, extras=ex, free=free, candidates=DEFAULT_CANDIDATES)
+    lin = next(r for r in sel.table if r["kind"] == "linear")
+    best = next(r for r in sel.table if r["selected"])
+    assert best["cv_rms_mean_v"] < 0.5 * lin["cv_rms_mean_v"]
+    _, tr = res[VAL]
+    m = tr["t"].to_numpy() > 0.75
+    q = tr["q"].to_numpy()[m]
+    e = sel.model.predict(q, 1e-3) - (tr["V"].to_numpy()[m] - q / (n * C))
+    A = np.column_stack([q, np.ones_like(q)])
+    e = e - A @ np.linalg.lstsq(A, e, rcond=None)[0]
+    print(f"\n{fam}: out-of-sample RMS {np.sqrt(np.mean(e ** 2)):.3f} V ({sel.model.label()})")
+    assert np.sqrt(np.mean(e ** 2)) < TOL_V[fam], (fam, sel.model.label())
+
+
+def test_bouc_wen_saturates_and_jiles_atherton_follows_its_anhysteretic():
+    u = np.concatenate([np.linspace(0, 3, 3000), np.linspace(3, 0, 3000)])
+    y = truth_path("bouc_wen", u, [1.0, 6.0, 2.0, 1.0, 1.0])   # z_max = (A / (beta + gamma))^(1/n) = 0.125
+    assert np.max(np.abs(y)) == pytest.approx(0.125, rel=0.02)
+    assert np.all(np.abs(y) <= 0.125 * 1.001)
+    hp = [1.0, 0.2, 0.1, 0.3, 0.0, 0.5, 1.0]
+    yj = truth_path("jiles_atherton", u, hp)
+    assert np.all(np.isfinite(yj)) and np.ptp(yj) > 0.5
+    # ascending and descending branches differ at the same input (hysteresis), and both stay below saturation
+    i_up, i_dn = 1000, 5000    # u = 1.0 on both branches
+    assert abs(yj[i_up] - yj[i_dn]) > 0.02
+    assert np.max(np.abs(yj)) < 1.0
+
+
+def test_unknown_family_and_preset_are_refused():
+    with pytest.raises(ValueError, match="unknown device family"):
+        draw_device("bogus", 0)
+    with pytest.raises(ValueError, match="unknown device preset"):
+        draw_device("preisach", 0, "bogus")
