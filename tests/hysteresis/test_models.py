@@ -111,7 +111,7 @@ def test_signed_pi_recovers_saturating_loops_that_nonnegative_weights_cannot_mak
     q = _drive(seed=4)
     u = q / (q.max() * 1.02)
     m0 = PlayH(n_play=5, ridge=0.0, creep=False).fit(q, u, DT)
-    r = np.arange(1, 6) / 5 * 0.5
+    r = np.arange(1, 6) / 5
     y = 10 * u - 3.0 * play_operator(u, r)[:, 1] + 1.0 * play_operator(u, r)[:, 3]
     m = PlayH(n_play=5, ridge=0.0, creep=False).fit(q, y, DT)
     assert m0.q_span_ == m.q_span_

@@ -14,6 +14,10 @@ from selfsense.mechanics.device import default_tweezer_mechanics
 from selfsense.sensing import CalibrationError, SelfSensingEstimator, SensingConfig
 
 FS = 1000.0
+#: the thesis identification (H of the modified PI on the free-tip trial, no drift compensation): the data below
+#: follow exactly its model class
+LEGACY = {"h_model": "modified_pi", "h_identification": "thesis", "drift": "off"}
+
 RIG = {
     "n_actuators": 5,
     "amplifier_gain": 15.0,
@@ -96,7 +100,7 @@ def _pct(est, ref):
 @pytest.mark.parametrize("mode", ["thesis", "onsite"])
 def test_recovers_displacement_and_force_on_unseen_loads(data, mode):
     trials, meta = data
-    cfg = SensingConfig(h_mode=mode, n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False)
+    cfg = SensingConfig(h_mode=mode, n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False, **LEGACY)
     est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
     obj = est.estimate(trials["val_obj_d"])
     blk = est.estimate(trials["val_block"])
@@ -110,7 +114,7 @@ def test_recovers_displacement_and_force_on_unseen_loads(data, mode):
 def test_physical_coefficients_match_eq_47_48_53(data):
     """With a perfect H the regressed A1 agrees with the mechanics' closed form up to the eq. (55) convention."""
     trials, meta = data
-    cfg = SensingConfig(n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False)
+    cfg = SensingConfig(n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False, **LEGACY)
     est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
     dev = default_tweezer_mechanics()
     M = dev.tip_matrix("contract")
@@ -123,7 +127,7 @@ def test_physical_coefficients_match_eq_47_48_53(data):
 
 def test_validation_trials_never_used_for_fitting(data):
     trials, meta = data
-    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=0, creep=False)
+    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=0, creep=False, **LEGACY)
     a = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
     poisoned = dict(trials)
     for t in ("val_obj_d", "val_free", "val_block"):
@@ -137,7 +141,7 @@ def test_validation_trials_never_used_for_fitting(data):
 
 def test_json_round_trip_gives_identical_estimates(data):
     trials, meta = data
-    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=2, creep=True)
+    cfg = SensingConfig(n_play=8, n_sup=4, n_creep=2, creep=True, **LEGACY)
     a = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
     import json
 
@@ -148,7 +152,7 @@ def test_json_round_trip_gives_identical_estimates(data):
 
 def test_missing_roles_give_clear_errors(data):
     trials, meta = data
-    cfg = SensingConfig(n_play=4, n_sup=2, n_creep=0, creep=False)
+    cfg = SensingConfig(n_play=4, n_sup=2, n_creep=0, creep=False, **LEGACY)
     m = meta.copy()
     m.loc["cal_free", "tip"] = "object"
     with pytest.raises(CalibrationError, match="no calibration trial with tip 'free'"):

@@ -97,6 +97,8 @@ def make_dataset(root: Path, name="ds") -> Path:
 def _fit(d: Path, tmp: Path, **cfg):
     meta = sio.load_trials(d).set_index("trial")
     sigs = {t: stages.ingest(d, t, tmp / f"{t}.parquet") for t in meta.index}
+    # the streaming kernel runs the modified PI of the thesis identification (registry models: batch estimation)
+    cfg = {"h_model": "modified_pi", "h_identification": "thesis", "drift": "off", "dc_offset": True, **cfg}
     est = SelfSensingEstimator(config=SensingConfig(**cfg), rig=sio.load_rig(d)).fit(sigs, meta)
     return est, sigs
 

@@ -92,12 +92,19 @@ class SensingConfig:
     n_creep_thresholds: int = 8
     drift: str = "auto"
     cv_blocks: int = 5
+    h_identification: str = "joint"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
             raise ValueError(f"SensingConfig.h_mode: expected one of {H_MODES}, found {self.h_mode!r}")
         if self.h_model not in H_MODELS:
             raise ValueError(f"SensingConfig.h_model: expected one of {H_MODELS}, found {self.h_model!r}")
+        if self.h_identification not in ("joint", "thesis"):
+            raise ValueError(f"SensingConfig.h_identification: expected 'joint' or 'thesis', found "
+                             f"{self.h_identification!r}")
+        if self.h_identification == "thesis" and self.h_model not in ("modified_pi", "ri"):
+            raise ValueError(f"SensingConfig: h_identification 'thesis' fits h_model 'modified_pi' or 'ri' on the "
+                             f"free-tip trial(s) only, found h_model {self.h_model!r}")
         if self.drift not in DRIFT:
             raise ValueError(f"SensingConfig.drift: expected one of {DRIFT}, found {self.drift!r}")
         if int(self.cv_blocks) < 2:
@@ -176,6 +183,46 @@ def auto_creep_count(duration_s: float, dt: float) -> int:
     return int(np.ceil(np.log10(max(duration_s / dt, 1.0)))) + 1
 
 
+def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
+    """``h_identification: thesis``: Kuhnen's modified PI operator (thesis App. A) fitted to the H(q) calibration
+    target of the first free-tip trial through the gauge of :class:`GaugedH` (the method as the thesis states it);
+    returns (model, report dict)."""
+    t0 = time.perf_counter()
+    n_creep = cfg.n_creep
+    if n_creep == "auto":
+        n_creep = auto_creep_count(dt * len(Q), dt)
+    sign = loop_orientation(Q, y)
+    ys = sign * y
+    slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
+    c = 2.0 * max(0.0, -slope)
+    target = ys + c * Q
+    from selfsense.hysteresis.identify import fit_modified_pi
+
+    inner, rep = fit_modified_pi(
+        Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
+        solver=cfg.solver, fit_z0=cfg.fit_z0,
+    )
+    report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
+    model = GaugedH(inner, sign, c)
+    pred = model(Q)
+    rng = float(np.ptp(y)) or 1.0
+    report.update({
+        "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
+        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
+        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))),
+        "gauge_sign": sign,
+        "gauge_c": c,
+        "n_creep": int(n_creep),
+    })
+    report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
+    # wall-clock time goes to the log, never into an artefact (same input and config -> bit-identical JSON)
+    report.pop("seconds", None)
+    log.info("H(q) fit: %s, %d samples, %.2f s, RMS %.3f %% / max %.3f %% of range", cfg.h_model, len(Q),
+             time.perf_counter() - t0, report["rms_pct"], report["max_pct"])
+    report["h_model"] = cfg.h_model
+    return model, report
+
+
 def _h_to_dict(model) -> dict:
     if hasattr(model, "kind") and hasattr(model, "predict"):
         return {"kind": "registry", "params": model.to_dict()}
@@ -209,6 +256,9 @@ def _eval_h(model, Q: np.ndarray, dt: float | None = None) -> np.ndarray:
     """H(Q) [V] of any stored model; registry models are evaluated at the sample time ``dt`` [s]."""
     if hasattr(model, "predict") and hasattr(model, "kind"):
         return np.asarray(model.predict(Q, dt), dtype=float)
+    if isinstance(model, GaugedH) and dt is not None and hasattr(model.inner, "with_dt") and model.inner.dt != dt:
+        # creep eigenvalues are in 1/s: evaluate at the trial's own sample time (CALIBRATION_NOTES item 8)
+        model = GaugedH(model.inner.with_dt(float(dt)), model.sign, model.c)
     if type(model).__name__ == "RIModel":
         return np.asarray(model(np.maximum(Q, 0.0)), dtype=float)
     return np.asarray(model(Q), dtype=float)
@@ -313,6 +363,7 @@ class SelfSensingEstimator:
     fit_report_: dict = field(default_factory=dict, init=False)
     calibration_trials_: list = field(default_factory=list, init=False)
     leakage_s_: float = field(default=0.0, init=False)
+    offset_drift_: bool = field(default=False, init=False)
     _extra_names: list = field(default_factory=list, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
@@ -373,14 +424,48 @@ class SelfSensingEstimator:
             slope = factor / (n_A * C_p)
             self.onsite_ = {"alpha": alpha, "B": B, "A_q": A_q, "factor": factor}
         self.h_slope_ = float(slope)
-        self.hysteresis_, rep = self._identify_h(cal_trials, cal, free, slope)
+        if cfg.h_identification == "joint":
+            self.hysteresis_, rep = self._identify_h(cal_trials, cal, free, slope)
+        else:
+            if cfg.h_model == "ri":
+                # RI model (third seed) + creep bank: linear in its parameters, fitted jointly on ALL free-tip
+                # calibration trials (each from the relaxed state the relay establishes)
+                from selfsense.sensing.hmodels import fit_ri_creep
+
+                segs = []
+                for tid in free.index:
+                    d = cal_trials[tid]
+                    d = d[d["relay"].to_numpy() < 0.5]
+                    segs.append((d["q"].to_numpy(), h_target(d["V"].to_numpy(), d["q"].to_numpy(), slope)))
+                t = df_free["t"].to_numpy()
+                dt = float(np.median(np.diff(t)))
+                n_creep = cfg.n_creep if cfg.n_creep != "auto" else auto_creep_count(dt * max(len(q) for q, _ in segs), dt)
+                t0 = time.perf_counter()
+                self.hysteresis_, rep = fit_ri_creep(segs, dt, n_thresholds=cfg.n_creep_thresholds,
+                                                     n_creep=int(n_creep), creep=cfg.creep)
+                Q, y = segs[0]
+                pred = self.hysteresis_(Q)
+                rng = float(np.ptp(y)) or 1.0
+                rep.update({"rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
+                            "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
+                            "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))), "n_creep": int(n_creep),
+                            "h_model": "ri", "trials": list(free.index)})
+                log.info("H(q) fit: RI + creep on %d free-tip trials, %.2f s, RMS %.3f %% of range on %s", len(segs),
+                         time.perf_counter() - t0, rep["rms_pct"], free_id)
+            else:
+                df_fit = _decimate(df_free[act], cfg.max_fit_samples)
+                t = df_fit["t"].to_numpy()
+                dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+                Q = df_fit["q"].to_numpy()
+                y = h_target(df_fit["V"].to_numpy(), Q, slope)
+                self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
         rep["trial"] = free_id
         self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
         self._fit_ranges(cal_trials, cal)
         return self
 
     # ------------------------------------------------------------------ H(q) identification
-    def _h_segments(self, cal_trials, cal, slope, g_leak):
+    def _h_segments(self, cal_trials, cal, slope, g_leak, drift_cols: bool | None = None):
         """Calibration rows of the joint H(q) fit: every free-tip trial (V_p = slope Q in the eq. 55 gauge, f = 0)
         and every trial with a force reference (V_p shifted by f / B22: a column -f_ref), relay excluded."""
         qs, ys, ex, free, names, dts = [], [], [], [], [], []
@@ -399,7 +484,7 @@ class SelfSensingEstimator:
                 f = np.zeros(len(Q))
             qs.append(Q); ys.append(y); ex.append(-f[:, None]); free.append(row["tip"] == "free"); names.append(tid)
             dts.append(_trial_dt(df))
-        if self.config.drift == "auto":
+        if self.offset_drift_ if drift_cols is None else drift_cols:
             # per-trial charge drift a t + b t^2 (in-amp offset drift) as free columns of the joint fit, so that it
             # does not bend H; validation trials get theirs from their rest segments (rest_drift)
             n = len(qs)
@@ -423,8 +508,8 @@ class SelfSensingEstimator:
         from selfsense.hysteresis.models import PreisachH
         from selfsense.hysteresis.models.select import _cv_linear, _stack_extra, blocked_folds
 
-        def rows(g):
-            qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g)
+        def rows(g, cols=False):
+            qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g, drift_cols=cols)
             return qs, ys, _stack_extra(ex, [len(q) for q in qs]), dt
 
         def insample(g):
@@ -432,8 +517,8 @@ class SelfSensingEstimator:
             m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
             return _insample(m, qs, ys, dt, E)
 
-        def cv(g):
-            qs, ys, E, dt = rows(g)
+        def cv(g, cols=False):
+            qs, ys, E, dt = rows(g, cols)
             m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
             return float(np.mean(_cv_linear(m, qs, ys, dt, E, blocked_folds([len(q) for q in qs], 3), 8)))
 
@@ -441,12 +526,24 @@ class SelfSensingEstimator:
         g = float(res.x)
         base, best = cv(0.0), cv(g)
         info = {"leakage_s": g, "cv_rms_v_without": base, "cv_rms_v_with": best}
+        notes = []
         if not best < 0.98 * base:
-            info["note"] = ("leakage compensation not supported by the calibration data (blocked-CV gain < 2 %): "
-                            "no compensation applied")
+            notes.append("leakage compensation not supported by the calibration data (blocked-CV gain < 2 %): not "
+                         "applied")
             info["applied"] = False
-            return 0.0, info
-        info["applied"] = True
+            g, best = 0.0, base
+        else:
+            info["applied"] = True
+        # in-amp offset drift: per-trial a t + b t^2 charge columns in the H fit, and each trial's own rest segments
+        # (rest_drift) -- only if the columns lower the blocked-CV error by >= 2 %
+        with_cols = cv(g, True)
+        info["offset_drift_cv_rms_v_with"] = with_cols
+        info["offset_drift_applied"] = bool(with_cols < 0.98 * best)
+        if not info["offset_drift_applied"]:
+            notes.append("offset-drift compensation not supported by the calibration data (blocked-CV gain < 2 %): "
+                         "not applied")
+        if notes:
+            info["note"] = "; ".join(notes)
         return g, info
 
     def _identify_h(self, cal_trials, cal, free, slope):
@@ -458,8 +555,10 @@ class SelfSensingEstimator:
         t0 = time.perf_counter()
         self.leakage_s_ = 0.0
         drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
+        self.offset_drift_ = False
         if cfg.drift == "auto":
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
+            self.offset_drift_ = bool(drift_info["offset_drift_applied"])
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
         if not free_mask.any():
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
@@ -509,7 +608,7 @@ class SelfSensingEstimator:
         Q = df["q"].to_numpy(dtype=float)
         if g:
             Q = Q - g * integral_v(df)
-        if drift and self.config.drift == "auto" and self.hysteresis_ is not None and g_leak is None:
+        if drift and self.offset_drift_ and self.hysteresis_ is not None and g_leak is None:
             dQ, _ = self.rest_drift(df, Q)
             Q = Q - dQ
         return Q
@@ -714,6 +813,7 @@ class SelfSensingEstimator:
             "fit_report": self.fit_report_,
             "calibration_trials": self.calibration_trials_,
             "leakage_s": self.leakage_s_,
+            "offset_drift": self.offset_drift_,
         }
 
     @classmethod
@@ -727,4 +827,5 @@ class SelfSensingEstimator:
         est.fit_report_ = dict(d.get("fit_report", {}))
         est.calibration_trials_ = list(d.get("calibration_trials", []))
         est.leakage_s_ = float(d.get("leakage_s", 0.0))
+        est.offset_drift_ = bool(d.get("offset_drift", False))
         return est

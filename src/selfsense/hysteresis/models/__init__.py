@@ -212,7 +212,8 @@ class LinearH(LinearParamH):
 
 class PlayH(LinearParamH):
     """Prandtl-Ishlinskii operator with *signed* weights (thesis eqs. 29-33 without the sign constraints 68-75):
-    ``H = sum_i w_i P_{r_i}[u] + w_0 u + creep + b``, thresholds ``r_i = i / n_play * r_max`` (u units, r_max = 0.5),
+    ``H = sum_i w_i P_{r_i}[u] + w_0 u + creep + b``, thresholds ``r_i = i / n_play`` (u units: up to the whole
+    calibration range, so that one-sided, virgin-curve plays are included),
     plays starting at z = 0 (the relaxed state). Signed weights make steepening and saturating loops alike."""
 
     kind = "pi"
@@ -230,7 +231,7 @@ class PlayH(LinearParamH):
     def _basis(self, u):
         from selfsense.hysteresis.operators import play_operator
 
-        r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+        r = np.arange(1, self.n_play + 1) / self.n_play
         return play_operator(u, r)
 
 

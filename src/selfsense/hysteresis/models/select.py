@@ -25,11 +25,13 @@ __all__ = ["DEFAULT_CANDIDATES", "SelectionResult", "select_h_model", "blocked_f
 #: (kind, hyper-parameters): the search space of ``h_model: auto``
 DEFAULT_CANDIDATES: tuple = (
     ("linear", {}),
+    ("pi", {"n_play": 20, "ridge": 1e-6}),
     ("pi", {"n_play": 20, "ridge": 1e-3}),
     ("preisach", {"n_grid": 12, "n_play": 0, "ridge": 1e-4}),
     ("preisach", {"n_grid": 12, "n_play": 10, "ridge": 1e-4}),
     ("preisach", {"n_grid": 16, "n_play": 10, "ridge": 1e-3}),
     ("ri", {"ridge": 1e-8}),
+    ("modified_pi", {"n_play": 12, "n_sup": 6, "n_creep": 3}),
 )
 
 
