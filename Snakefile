@@ -28,6 +28,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/pipeline.smk"
 include: "workflow/rules/gap.smk"
 include: "workflow/rules/ri.smk"
+include: "workflow/rules/devices.smk"
 
 
 rule all:

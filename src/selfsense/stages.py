@@ -109,7 +109,27 @@ def calibrate(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], c
     est = SelfSensingEstimator(config=sensing_config(config), rig=rig)
     est.fit_hysteresis(_load_signals(signal_paths), _meta(dataset_dir))
     sio.write_json_atomic(est.to_dict(), out_json)
+    sio.write_text_atomic(selection_table(est).to_csv(index=False, float_format="%.6g"),
+                          Path(out_json).parent / "h_selection.csv")
     return est
+
+
+def selection_table(est: SelfSensingEstimator) -> pd.DataFrame:
+    """The H(q) model-selection table of a fitted estimator: one row per candidate (blocked-CV RMS per fold and mean
+    [V], the straight line's mean for comparison, selected flag); empty for the thesis identification."""
+    rep = est.fit_report_.get("hysteresis", {})
+    table = rep.get("selection") or []
+    lin = next((r["cv_rms_mean_v"] for r in table if r["kind"] == "linear"), float("nan"))
+    rows = []
+    for r in table:
+        row = {"model": r["label"], "kind": r["kind"]}
+        for i, v in enumerate(r["cv_rms_v"], 1):
+            row[f"cv_rms_fold{i}_V"] = v
+        row.update({"cv_rms_mean_V": r["cv_rms_mean_v"], "linear_baseline_rms_V": lin,
+                    "beats_linear": bool(r["cv_rms_mean_v"] < lin) if r["kind"] != "linear" else "",
+                    "selected": bool(r["selected"]), "status": r["status"]})
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def regress(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], hysteresis_json: str | Path,
@@ -160,9 +180,10 @@ def score(dataset_dir: str | Path, estimate_paths: Mapping[str, str | Path], out
 
 def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], config: Mapping[str, Any],
                   out_csv: str | Path, out_md: str | Path) -> pd.DataFrame:
-    """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23) and both H(q) model families
-    (Kuhnen's modified PI with creep, thesis eqs. 36-43; RI model of the third seed + creep bank, fitted jointly on
-    all free-tip calibration trials), same data and other settings."""
+    """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23) and three ways to identify H(q),
+    same data and other settings: the H model selected by blocked CV, identified jointly on every free-tip and
+    force-reference calibration trial (the default); Kuhnen's modified PI with creep (thesis eqs. 36-43) on the
+    free-tip trial only, as the thesis does; the RI model of the third seed + creep bank on the free-tip trials."""
     from selfsense.report import tables
 
     rig = sio.load_rig(dataset_dir)
@@ -180,12 +201,17 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     try:
         cal = {t: p for t, p in signal_paths.items() if t in meta.index and meta.loc[t, "role"] == "calibration"}
         sigs = _load_signals(cal)
-        combos = (("modified_pi", "thesis"), ("modified_pi", "onsite"), ("ri", "thesis"), ("ri", "onsite"))
+        # the default (model selected by blocked CV, joint identification, drift compensation) and the thesis'
+        # identification of the modified PI and of the RI model, each in both calibration modes
+        combos = tuple((h, ident, mode) for h, ident in (("auto", "joint"), ("modified_pi", "thesis"), ("ri", "thesis"))
+                       for mode in ("thesis", "onsite"))
         ests = {}
-        for h_model, mode in combos:
+        for h_model, ident, mode in combos:
             cfg = dict(config)
-            cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model)
-            ests[(h_model, mode)] = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+            extra = {} if ident == "joint" else {"drift": "off"}
+            cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model,
+                                      h_identification=ident, **extra)
+            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
         pts: dict = {c: [] for c in combos}
         left_out = {}
         for t in sorted(signal_paths):
@@ -209,24 +235,30 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     finally:
         pa.set_memory_pool(pool)
     rows = []
-    for (h_model, mode) in combos:
-        est = ests[(h_model, mode)]
-        t3 = tables.table3(pd.concat(pts[(h_model, mode)], ignore_index=True))
+    for (h_model, ident, mode) in combos:
+        est = ests[(h_model, ident, mode)]
+        t3 = tables.table3(pd.concat(pts[(h_model, ident, mode)], ignore_index=True))
         for _, r in t3.iterrows():
-            rows.append({"h_model": h_model, "h_mode": mode, "measurement": r["measurement"],
+            rows.append({"h_model": h_model, "h_identification": ident, "h_mode": mode,
+                         "h_selected": est.fit_report_["hysteresis"].get("selected", h_model),
+                         "measurement": r["measurement"],
                          "mean_abs_error": r["mean_abs_error"],
                          "percent_of_range": r["percent_of_range"], "n_trials": r["n_trials"],
                          "h_fit_rms_pct": est.fit_report_["hysteresis"].get("rms_pct", float("nan"))})
     df = pd.DataFrame(rows)
     sio.write_text_atomic(df.to_csv(index=False, float_format="%.6g"), out_csv)
-    lines = ["### Table 3 for both H(q) calibration modes and both H(q) model families", "",
-             "| H(q) model | H(q) calibration | displacement, % of range | force, % of range | H fit RMS, % |",
-             "|---|---|---|---|---|"]
+    lines = ["### Table 3 for both H(q) calibration modes and three H(q) identifications", "",
+             "| H(q) model | identified on | H(q) calibration | displacement, % of range | force, % of range | "
+             "H fit RMS, % |", "|---|---|---|---|---|---|"]
     label = {"thesis": "thesis eq. (55)", "onsite": "on-site, paper eq. (23)"}
-    mlabel = {"modified_pi": "modified PI + creep (thesis eqs. 36-43)", "ri": "RI (third seed) + creep bank"}
-    for (h_model, mode), g in df.groupby(["h_model", "h_mode"], sort=False):
+    mlabel = {"auto": "selected by blocked CV", "modified_pi": "modified PI + creep (thesis eqs. 36-43)",
+              "ri": "RI (third seed) + creep bank"}
+    ilabel = {"joint": "all free-tip and force-reference calibration trials, drift compensation",
+              "thesis": "the free-tip trial(s) only (thesis)"}
+    for (h_model, ident, mode), g in df.groupby(["h_model", "h_identification", "h_mode"], sort=False):
         g = g.set_index("measurement")
-        lines.append(f"| {mlabel[h_model]} | {label[mode]} | {g.loc['displacement', 'percent_of_range']:.2f} | "
+        name = mlabel[h_model] + (f": {g['h_selected'].iloc[0]}" if h_model == "auto" else "")
+        lines.append(f"| {name} | {ilabel[ident]} | {label[mode]} | {g.loc['displacement', 'percent_of_range']:.2f} | "
                      f"{g.loc['force', 'percent_of_range']:.2f} | {g['h_fit_rms_pct'].iloc[0]:.3f} |")
     if left_out:
         lines += ["", "Left out of this comparison (sample budget of " + f"{COMPARE_MAX_SAMPLES:,} samples per trial; "

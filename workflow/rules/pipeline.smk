@@ -50,6 +50,7 @@ rule calibrate_hysteresis:
         signals=per_trial("signals", calibration_trials),
     output:
         res("{dataset}", "model", "hysteresis.json"),
+        res("{dataset}", "model", "h_selection.csv"),
     log:
         res("{dataset}", "logs", "calibrate_hysteresis.log"),
     benchmark:
