@@ -133,7 +133,7 @@ class LinearParamH:
                 if isinstance(extra, (list, tuple)) else np.asarray(extra, dtype=float).reshape(len(y), -1)
             X = np.column_stack([X, E])
             pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
-        coef = ridge_lstsq(X, y, pen, self.ridge)
+        coef = ridge_lstsq(X, y, pen, self.ridge, lower=self._bounds(X.shape[1]))
         nE = 0 if E is None else E.shape[1]
         self.coef_ = coef[:len(coef) - nE]
         self.extra_coef_ = coef[len(coef) - nE:]
@@ -157,6 +157,9 @@ class LinearParamH:
                 "coef": None if self.coef_ is None else [float(c) for c in self.coef_],
                 "extra_coef": [float(c) for c in self.extra_coef_], "fitted": self._fitted_state()}
 
+    def _bounds(self, n_cols: int):
+        return None
+
     def _fitted_state(self) -> dict:
         return {}
 
@@ -177,7 +180,7 @@ class LinearParamH:
         return f"{self.kind}({extra}{', ' if extra else ''}ridge={self.ridge:g}{', creep' if self.creep else ''})"
 
 
-def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float) -> np.ndarray:
+def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float, lower=None) -> np.ndarray:
     """``argmin |X w - y|^2 + ridge N |D w|^2`` with ``D`` selecting the penalised columns of the column-scaled X,
     solved by a pivoted-QR least-squares solve of the augmented matrix (well-conditioned factor, no normal
     equations)."""
@@ -193,6 +196,12 @@ def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: floa
         b = np.concatenate([y, np.zeros(idx.size)])
     else:
         A, b = Xs, y
+    if lower is not None:
+        from scipy.optimize import lsq_linear
+
+        # bounded least squares (trust-region reflective on the same augmented, column-scaled matrix)
+        return lsq_linear(A, b, bounds=(np.asarray(lower, float) * 1.0, np.inf), method="trf",
+                          lsmr_tol="auto").x / s
     from scipy.linalg import lstsq
 
     # complete orthogonal factorisation (QR with column pivoting, LAPACK gelsy): rank-revealing like an SVD,
@@ -219,14 +228,24 @@ class PlayH(LinearParamH):
     kind = "pi"
 
     def __init__(self, n_play: int = 10, ridge: float = 1e-6, creep: bool = True,
-                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S):
+                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, nonneg: bool = False):
         super().__init__(ridge, creep, creep_tau_s)
         if int(n_play) < 1:
             raise ValueError(f"PlayH: n_play must be >= 1, got {n_play!r}")
         self.n_play = int(n_play)
+        self.nonneg = bool(nonneg)
 
     def _params(self) -> dict:
-        return {"n_play": self.n_play}
+        return {"n_play": self.n_play, "nonneg": self.nonneg} if self.nonneg else {"n_play": self.n_play}
+
+    def _bounds(self, n_cols: int):
+        """Non-negative play weights (thesis constraints 68-73) when ``nonneg``; the linear, creep, offset and extra
+        columns stay free. Non-negative weights extrapolate monotonically beyond the identified input range."""
+        if not self.nonneg:
+            return None
+        lo = np.full(n_cols, -np.inf)
+        lo[:self.n_play] = 0.0
+        return lo
 
     def _basis(self, u):
         from selfsense.hysteresis.operators import play_operator

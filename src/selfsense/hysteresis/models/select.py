@@ -78,9 +78,10 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, E, folds, thin):
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     rms = []
+    lower = model._bounds(X.shape[1])
     for held in folds:
         tr = keep & ~held
-        w = ridge_lstsq(X[tr], y[tr], pen, model.ridge)
+        w = ridge_lstsq(X[tr], y[tr], pen, model.ridge, lower=lower)
         ev = held & keep
         rms.append(float(np.sqrt(np.mean((X[ev] @ w - y[ev]) ** 2))))
     return rms
