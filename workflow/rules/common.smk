@@ -26,6 +26,22 @@ GAP_ESTIMATOR = config.get("gap", {}).get("estimator") or (
 )
 #: settings the H(q) calibration and the estimator read (params of the rules that fit a model)
 SENSING_CONFIG = {k: config.get(k, {}) for k in ("calibration", "estimation")}
+# cross-device benchmark target (workflow/rules/devices.smk): settings from config["devices"]
+DEVICES = {
+    "n": 10,
+    "first_seed": 0,
+    "families": ["preisach", "bouc_wen", "gpi", "jiles_atherton"],
+    "presets": ["clean", "drift"],
+    **config.get("devices", {}),
+}
+DEVICE_IDS = [
+    f"{fam}_{pre}_{seed}"
+    for fam in DEVICES["families"]
+    for pre in DEVICES["presets"]
+    for seed in range(
+        int(DEVICES["first_seed"]), int(DEVICES["first_seed"]) + int(DEVICES["n"])
+    )
+]
 
 _TRIALS = {}
 
