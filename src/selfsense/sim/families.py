@@ -23,7 +23,8 @@ Physical ranges (per device, uniform unless stated):
 * the catalog values written to rig.yaml differ from the truth by up to +-20 % (a catalog is not the device);
   ``tip_free_displacement_m`` is "measured once" by a simulated quasi-static 150 V stroke S; the tip opening is
   S + 1 mm and the two objects are sized to touch at 35 % and 65 % of the stroke the drive reaches;
-* the rig's in-amp gain is chosen for the device (peak shunt voltage about 4 V at the ADC), at most 5;
+* the rig's in-amp gain is chosen for the device (peak shunt voltage about 4 V at the ADC), at most 5, and lowered
+  further when a noise-free test drive shows the shunt channel would clip (peak kept below 8 V);
 * drives: base frequency 0.4-0.6 Hz, amplitude 120-150 V.
 
 Presets: ``clean`` (no unmodelled effect except the electrical creep and the chosen hysteresis) and ``drift``
@@ -210,7 +211,31 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
     large_mm = round((S + 1.0e-3 - 0.35 * s_amp) * 1e3, 3)
     small_mm = round((S + 1.0e-3 - 0.65 * s_amp) * 1e3, 3)
     sc["trials"] = device_trials(freq, amp, large_mm, small_mm)
+    # and lowers the in-amp gain if a test drive shows the shunt channel would clip (steep V_H(q) segments draw
+    # current spikes): peak of the free mixed and blocked sine calibration drives kept within 8 V of the 10 V ADC
+    i_max = _peak_current(sc)
+    R = base.shunt_resistance_ohm
+    if dev["inamp_gain"] * R * i_max > 8.0:
+        dev["inamp_gain"] = float(8.0 / (R * i_max))
     return sc
+
+
+def _peak_current(sc: dict) -> float:
+    """Largest |dq/dt| [A] of the free-tip mixed and blocked-tip sine calibration drives (noise-free truth)."""
+    from .device import load_device as _ld
+    from .effects import resolve_effects
+    from .simulate import simulate_trial
+
+    dev = _ld(overrides=sc["device"])
+    eff = resolve_effects(sc.get("effects") or {}, use_defaults=bool(sc.get("effects_defaults", False)))
+    peak = 0.0
+    for tr in sc["trials"]:
+        if tr["trial"] in ("cal_free_mixed", "cal_blocked_sine"):
+            _, truth = simulate_trial(tr, dev, eff, seed=0, index=0, sample_rate_hz=1000.0, substeps=4,
+                                      effects_defaults=False)
+            q = truth["q"].to_numpy()
+            peak = max(peak, float(np.max(np.abs(np.diff(q)))) * 1000.0)
+    return peak
 
 
 def device_trials(freq: float, amp: float, large_mm: float = 4.0, small_mm: float = 2.0) -> list[dict]:
