@@ -125,3 +125,26 @@ def test_rest_segments_recover_an_injected_offset_drift():
         err_before = np.sqrt(np.mean((Q - truth["q"].to_numpy()) ** 2))
         err_after = np.sqrt(np.mean((Q - dQ - truth["q"].to_numpy()) ** 2))
         assert err_after < 0.5 * err_before
+
+
+def test_estimate_command_runs_registry_models_in_batch(tmp_path):
+    """`selfsense estimate` with the default (registry) model reproduces the batch pipeline on a raw log."""
+    import json
+
+    from selfsense.sensing.cli import estimate_log, streamable
+
+    d = ROOT / "data" / "raw" / "sample"
+    rig = sio.load_rig(d)
+    meta = sio.load_trials(d).set_index("trial")
+    sigs = {t: prepare_trial(sio.trial_signals(d, t, rig=rig), rig) for t in meta.index}
+    est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit(sigs, meta)
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict(), default=float))
+    assert not streamable(model)
+    t = "val_disp_large"
+    n = estimate_log(model, d, d / meta.loc[t, "file"], tmp_path / "out.parquet", chunk=1000)
+    got = pd.read_parquet(tmp_path / "out.parquet")
+    ref = est.estimate(sigs[t])
+    assert n == len(ref)
+    np.testing.assert_allclose(got["dx_hat"].to_numpy(), ref["dx_hat"].to_numpy(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got["f_hat"].to_numpy(), ref["f_hat"].to_numpy(), rtol=0, atol=1e-12)

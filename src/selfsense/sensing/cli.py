@@ -137,6 +137,8 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     # --out must not resolve to (or lie in) an input or a raw dataset, whatever the folder names
     sio.check_output_file(out, [model, dataset, log])
     rig = sio.load_rig(dataset)
+    if not streamable(model):
+        return _estimate_batch(model, rig, log, out, chunk, full, offset)
     stream = SelfSensingStream.from_json(model, rig, offset=offset)
     n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
     if not has_relay and offset == "relay":
@@ -164,6 +166,53 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
         finally:
             writer.close()
     return done
+
+
+def streamable(model: str | Path) -> bool:
+    """True for models the sample-by-sample kernel runs: the thesis identification of the modified PI without drift
+    compensation (``h_model: modified_pi``, ``h_identification: thesis``); the registry's models are batch-only."""
+    import json
+
+    d = json.loads(Path(model).read_text())
+    h = d.get("hysteresis") or {}
+    return h.get("kind") in ("GaugedH", "ModifiedPI") and not d.get("leakage_s") and not d.get("offset_drift")
+
+
+def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset) -> int:
+    """Whole-log estimation for models the streaming kernel does not run (the H(q) registry's models, drift
+    compensation: the rest-segment drift estimate needs the whole trial): the log is read in chunks, concatenated,
+    converted as the pipeline does (selfsense.io.to_si, selfsense.signals.prepare_trial) and estimated with
+    ``SelfSensingEstimator.estimate``, exactly the batch pipeline. Memory grows with the log length."""
+    import json
+
+    import numpy as np
+    import pandas as pd
+
+    from selfsense import io as sio
+    from selfsense.sensing.estimator import SelfSensingEstimator
+    from selfsense.signals import prepare_trial
+
+    est = SelfSensingEstimator.from_dict(json.loads(Path(model).read_text()), rig)
+    n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
+    if not has_relay and offset == "relay":
+        raise ValueError(f"{log}: no relay column, so the in-amp offset cannot be estimated; pass --offset VOLTS")
+    blocks = list(chunks)
+    cols = {c: np.concatenate([b[c] for b in blocks]) for c in blocks[0]} if blocks else {}
+    if not cols or len(cols["t"]) < 2:
+        raise ValueError(f"{log}: fewer than 2 samples")
+    raw = pd.DataFrame(cols)
+    if "relay" not in raw:
+        raw["relay"] = 0.0
+    raw["laser"] = np.nan
+    raw["load_cell"] = np.nan
+    sig = prepare_trial(sio.to_si(raw, rig, None), rig, offset=offset)
+    res = est.estimate(sig)
+    names = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
+    frame = pd.DataFrame({c: res[c].to_numpy() if c in res else sig[c].to_numpy() for c in names})
+    sio.write_parquet_atomic(frame, out)
+    print(f"selfsense estimate: {est.hysteresis_.label() if hasattr(est.hysteresis_, 'label') else 'model'} runs in "
+          f"batch (whole log in memory), not sample by sample", file=sys.stderr)
+    return len(frame)
 
 
 def main(argv: list[str] | None = None) -> int:
