@@ -176,3 +176,21 @@ def test_modified_pi_worse_than_a_line_is_an_error_not_optimal():
     v = 60.0 * q / QREF + 6.0 * P[:, 0] - 3.0 * P[:, 1] + 0.5 * np.tanh(5 * (q / QREF - 0.4))
     with pytest.raises(DegenerateFitError, match="straight line"):
         make_model("modified_pi", n_play=6, n_sup=3, n_creep=2).fit(q, v, DT)
+
+
+def test_long_records_are_fitted_on_strided_rows_and_predicted_without_the_design(monkeypatch):
+    """Above MAX_FIT_ROWS the fit keeps every k-th row (operators still run over every sample, dt unchanged);
+    predict builds no design matrix and equals design @ coef."""
+    import selfsense.hysteresis.models as M
+
+    q = _drive(6000, seed=9)
+    P = play_operator(q / QREF, [0.1, 0.3])
+    v = 40 * q / QREF + 5 * P[:, 0] - 2 * P[:, 1]
+    full = PreisachH(n_grid=6, n_play=4, ridge=1e-8).fit(q, v, DT)
+    monkeypatch.setattr(M, "MAX_FIT_ROWS", 1500)
+    assert M.fit_stride([6000]) == 4
+    thin = PreisachH(n_grid=6, n_play=4, ridge=1e-8).fit(q, v, DT)
+    assert thin.fit_report_["row_stride"] == 4 and thin.dt_ == DT
+    X, _ = thin.design(q, DT)
+    np.testing.assert_allclose(thin.predict(q), X @ thin.coef_, rtol=0, atol=1e-9)
+    assert np.sqrt(np.mean((thin.predict(q) - full.predict(q)) ** 2)) < 0.01 * np.std(v)

@@ -179,6 +179,15 @@ def _model_section(results_dir: Path) -> list[str]:
             "ri": f"the one-sided rate-independent (RI) model of {_SEEDS['ri']} with a creep bank, fitted by "
                   "least squares jointly on all free-tip calibration trials"}.get(str(rep.get("h_model")),
                                                                                    html.escape(str(rep.get("h_model"))))
+    if rep.get("selected"):   # the H(q) model registry (h_identification: joint): the model the selection chose
+        kind = (f"<code>{html.escape(str(rep['selected']))}</code>"
+                + (" (chosen by blocked cross-validation, table below)" if rep.get("h_model") == "auto" else "")
+                + ", identified jointly on the free-tip and force-reference calibration trials")
+        drift = rep.get("drift") or {}
+        if drift:
+            kind += (f"; charge leakage {'compensated, ' + format(drift.get('leakage_s', 0) * 1e9, '.2f') + ' nS' if drift.get('applied') else 'not compensated'}"
+                     f", offset drift {'compensated' if drift.get('offset_drift_applied') else 'not compensated'}"
+                     + (f" ({html.escape(str(drift['note']))})" if drift.get("note") else ""))
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"
@@ -283,8 +292,11 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
         if t3.exists():
             t = pd.read_csv(t3).set_index("measurement")["percent_of_range"]
             rec = (f" Table 3 reports {_pct(t.get('displacement'))} and {_pct(t.get('force'))} for the same "
-                   "validation trials: Table 3 averages each trial's error in % of that trial's own reference "
-                   "range after limiting and the sliding DC offset (thesis sec. 5.2), while the diagnostic scores "
+                   "validation trials with the configured estimator. The diagnostic's nominal model is the thesis' "
+                   "identification (H of the modified PI, or of the RI model with h_model: ri, on the free-tip "
+                   "trial only, no drift compensation): its null thresholds were calibrated for that model, not for "
+                   "the H(q) model registry. Table 3 averages each trial's error in % of that trial's own reference "
+                   "range after the post-processing (thesis sec. 5.2), while the diagnostic scores "
                    "the estimator without that post-processing, pools the samples of all validation trials (also "
                    "counting blocked-tip trials as zero displacement and free-tip trials as zero force) and divides "
                    "by each measurement's range over all trials, so the two differ by construction.")

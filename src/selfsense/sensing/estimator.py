@@ -312,13 +312,14 @@ def _candidates_for(h_model: str, cfg: "SensingConfig") -> tuple:
 def _insample(model, qs, ys, dt, E, thin: int = 16, drop=None) -> float:
     """RMS [V] of the least-squares residual of ``model`` on every ``thin``-th calibration row (leakage search);
     ``drop``: boolean over the stacked rows, rows left out of the fit (a fold)."""
-    from selfsense.hysteresis.models import ridge_lstsq
+    from selfsense.hysteresis.models import fit_stride, ridge_lstsq
 
     model.prepare(qs, dt)
+    thin = max(thin, fit_stride([len(q) for q in qs]))
     Xs, pen = [], None
     for q in qs:
-        X, pen = model.design(q, dt)
-        Xs.append(X[::thin])
+        X, pen = model.design(q, dt, thin)
+        Xs.append(X)
     X = np.vstack(Xs)
     y = np.concatenate([np.asarray(v)[::thin] for v in ys])
     if E is not None:
@@ -518,7 +519,7 @@ class SelfSensingEstimator:
         blocked-CV error of that model by >= 2 % (else the data do not support it; reported)."""
         from scipy.optimize import minimize_scalar
 
-        from selfsense.hysteresis.models import PreisachH
+        from selfsense.hysteresis.models import PreisachH, fit_stride
         from selfsense.hysteresis.models.select import _cv_linear, _stack_extra, blocked_folds
 
         def rows(g, cols=False):
@@ -528,14 +529,18 @@ class SelfSensingEstimator:
         def insample(g, drop=None):
             qs, ys, E, dt = rows(g, True)
             m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
-            if drop is not None:   # stacked-row mask -> every 16th row, as _insample thins
-                drop = np.concatenate([d[::16] for d in _split_rows(drop, [len(q) for q in qs])])
+            if drop is not None:   # stacked-row mask -> the rows _insample keeps
+                k = max(16, fit_stride([len(q) for q in qs]))
+                drop = np.concatenate([d[::k] for d in _split_rows(drop, [len(q) for q in qs])])
             return _insample(m, qs, ys, dt, E, drop=drop)
 
         def cv(g, cols=False):
             qs, ys, E, dt = rows(g, cols)
             m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
-            return float(np.mean(_cv_linear(m, qs, ys, dt, E, blocked_folds([len(q) for q in qs], 3), 8)))
+            lengths = [len(q) for q in qs]
+            k = fit_stride(lengths)
+            E = None if E is None else np.vstack([e[::k] for e in _split_rows(E, lengths)])
+            return float(np.mean(_cv_linear(m, qs, ys, dt, E, blocked_folds([len(q[::k]) for q in qs], 3), 8)))
 
         def search(drop=None):
             res = minimize_scalar(lambda g: insample(g, drop), bounds=(0.0, 50e-9), method="bounded",
@@ -617,6 +622,9 @@ class SelfSensingEstimator:
                "trials": names, "selection": sel.table, "warnings": list(sel.warnings),
                "rms_v": float(np.sqrt(np.mean(np.square(rms)))), "rms_v_per_trial": dict(zip(names, rms)),
                "rms_pct": float(rms[int(np.flatnonzero(free_mask)[0])] / rng * 100), "dt_s": dt,
+               "max_pct": float(np.max(np.abs(model.predict(qs[int(np.flatnonzero(free_mask)[0])], dt)
+                                              - y0 + (ex[int(np.flatnonzero(free_mask)[0])] @ sel.extra_coef
+                                                      if len(sel.extra_coef) else 0.0))) / rng * 100),
                "drift": drift_info, "extra_coef": [float(c) for c in sel.extra_coef],
                "n_samples_fit": int(sum(len(q) for q in qs))}
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,

@@ -27,10 +27,20 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ._grid import preisach_grid_features, relaxation_bank
+from ._grid import play_features, play_output, preisach_grid_features, preisach_grid_output, relaxation_bank, relaxation_output
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "h_from_dict",
            "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError"]
+
+#: at most this many rows enter a least-squares fit: longer calibration records are thinned to every k-th sample
+#: for the fit (the operators still run over every sample, and the stored sample time stays the data's)
+MAX_FIT_ROWS = 200_000
+
+
+def fit_stride(lengths) -> int:
+    """Row stride that keeps the stacked fit rows of ``lengths`` samples within :data:`MAX_FIT_ROWS`."""
+    return max(1, int(np.ceil(sum(int(n) for n in lengths) / MAX_FIT_ROWS)))
+
 
 #: creep time constants [s] of the relaxation bank (log-spaced, 0.1 s to 30 s)
 DEFAULT_CREEP_TAU_S = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
@@ -77,8 +87,8 @@ class LinearParamH:
     def _params(self) -> dict:
         return {}
 
-    def _basis(self, u: np.ndarray) -> np.ndarray:  # (N, p) hysteretic basis of the normalised charge
-        return np.zeros((u.size, 0))
+    def _basis(self, u: np.ndarray, stride: int = 1) -> np.ndarray:  # (N / stride, p) hysteretic basis
+        return np.zeros((len(u[::stride]), 0))
 
     def _setup(self, us: list[np.ndarray]) -> None:
         """Choose data-dependent basis settings from the normalised calibration inputs (stored as fitted attrs)."""
@@ -87,17 +97,19 @@ class LinearParamH:
     def _u(self, q: np.ndarray) -> np.ndarray:
         return (np.asarray(q, dtype=float) - self.q_lo_) / self.q_span_
 
-    def design(self, q, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Design matrix ``[basis | u | creep | 1]`` of one trial and the mask of ridge-penalised columns."""
+    def design(self, q, dt: float, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Design matrix ``[basis | u | creep | 1]`` of one trial (every ``stride``-th row; the operators still run
+        over every sample) and the mask of ridge-penalised columns."""
         u = self._u(q)
-        B = self._basis(u)
-        cols = [B, u[:, None]]
+        B = self._basis(u, stride)
+        us = u[::stride]
+        cols = [B, us[:, None]]
         pen = [np.ones(B.shape[1], bool), np.zeros(1, bool)]
         if self.creep and self.creep_tau_s:
-            C = relaxation_bank(u, float(dt), self.creep_tau_s)
+            C = np.column_stack([relaxation_bank(u, float(dt), [t])[::stride, 0] for t in self.creep_tau_s])
             cols.append(C)
             pen.append(np.ones(C.shape[1], bool))
-        cols.append(np.ones((u.size, 1)))
+        cols.append(np.ones((us.size, 1)))
         pen.append(np.zeros(1, bool))
         return np.column_stack(cols), np.concatenate(pen)
 
@@ -118,19 +130,26 @@ class LinearParamH:
         return self
 
     def fit(self, q, v, dt: float, extra=None) -> "LinearParamH":
-        """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring)."""
+        """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring);
+        records longer than :data:`MAX_FIT_ROWS` samples in all are fitted on every k-th sample."""
         qs, vs = _segments(q, v)
         self.prepare(qs, dt)
+        k = fit_stride([len(x) for x in qs])
         Xs, pen = [], None
         for x in qs:
-            X, pen = self.design(x, dt)
+            X, pen = self.design(x, dt, k)
             Xs.append(X)
         X = np.vstack(Xs)
-        y = np.concatenate(vs)
+        y = np.concatenate([w[::k] for w in vs])
         E = None
         if extra is not None:
-            E = np.vstack([np.asarray(e, dtype=float).reshape(len(x), -1) for e, x in zip(extra, qs)]) \
-                if isinstance(extra, (list, tuple)) else np.asarray(extra, dtype=float).reshape(len(y), -1)
+            if not isinstance(extra, (list, tuple)):
+                off, parts = 0, []
+                for x in qs:
+                    parts.append(np.asarray(extra, dtype=float).reshape(sum(len(z) for z in qs), -1)[off:off + len(x)])
+                    off += len(x)
+                extra = parts
+            E = np.vstack([np.asarray(e, dtype=float).reshape(len(x), -1)[::k] for e, x in zip(extra, qs)])
             X = np.column_stack([X, E])
             pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
         coef = ridge_lstsq(X, y, pen, self.ridge, lower=self._bounds(X.shape[1]))
@@ -138,15 +157,28 @@ class LinearParamH:
         self.coef_ = coef[:len(coef) - nE]
         self.extra_coef_ = coef[len(coef) - nE:]
         resid = X @ coef - y
-        self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(resid**2))), "n_samples": int(len(y)),
+        self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(resid**2))), "n_samples": int(len(y)), "row_stride": k,
                             "n_parameters": int(X.shape[1]), "solver": "pivoted-QR least squares (ridge)"}
         return self
 
     def predict(self, q, dt: float | None = None) -> np.ndarray:
+        """H [V] from the relaxed state, at sample time ``dt`` [s] (default ``dt_``). Computed term by term without
+        building the design matrix: memory O(len(q)), whatever the number of basis functions."""
         if self.coef_ is None:
             raise RuntimeError(f"{type(self).__name__}.predict called before fit()")
-        X, _ = self.design(np.asarray(q, dtype=float), self.dt_ if dt is None else float(dt))
-        return X @ self.coef_
+        dt = self.dt_ if dt is None else float(dt)
+        u = self._u(q)
+        c = self.coef_
+        nb = len(c) - 2 - (len(self.creep_tau_s) if self.creep and self.creep_tau_s else 0)
+        y = self._basis_dot(u, c[:nb]) + c[nb] * u
+        if self.creep and self.creep_tau_s:
+            y = y + relaxation_output(u, dt, self.creep_tau_s, c[nb + 1:nb + 1 + len(self.creep_tau_s)])
+        return y + c[-1]
+
+    def _basis_dot(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``basis(u) @ w``; subclasses compute it without the full basis."""
+        B = self._basis(u)
+        return B @ w if B.shape[1] else np.zeros(u.size)
 
     def __call__(self, q) -> np.ndarray:
         return self.predict(q)
@@ -247,11 +279,13 @@ class PlayH(LinearParamH):
         lo[:self.n_play] = 0.0
         return lo
 
-    def _basis(self, u):
-        from selfsense.hysteresis.operators import play_operator
-
+    def _basis(self, u, stride=1):
         r = np.arange(1, self.n_play + 1) / self.n_play
-        return play_operator(u, r)
+        return play_features(np.ascontiguousarray(u, dtype=float), r, int(stride))
+
+    def _basis_dot(self, u, w):
+        r = np.arange(1, self.n_play + 1) / self.n_play
+        return play_output(np.ascontiguousarray(u, dtype=float), r, np.ascontiguousarray(w, dtype=float))
 
 
 class PreisachH(LinearParamH):
@@ -275,17 +309,25 @@ class PreisachH(LinearParamH):
     def _params(self) -> dict:
         return {"n_grid": self.n_grid, "n_play": self.n_play}
 
-    def _basis(self, u):
+    def _basis(self, u, stride=1):
         """Grid cells plus, with ``n_play`` > 0, play operators (thresholds up to 0.5): a density concentrated
         near the diagonal alpha = beta, which makes the slope jump at a reversal (saturating Bouc-Wen-type loops)
         that cell-constant densities cannot."""
-        F = preisach_grid_features(np.ascontiguousarray(u, dtype=float), 0.0, 1.0, self.n_grid)
+        u = np.ascontiguousarray(u, dtype=float)
+        F = preisach_grid_features(u, 0.0, 1.0, self.n_grid, int(stride))
         if self.n_play:
-            from selfsense.hysteresis.operators import play_operator
-
             r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
-            F = np.column_stack([F, play_operator(u, r)])
+            F = np.column_stack([F, play_features(u, r, int(stride))])
         return F
+
+    def _basis_dot(self, u, w):
+        u = np.ascontiguousarray(u, dtype=float)
+        nc = self.n_grid * (self.n_grid + 1) // 2
+        y = preisach_grid_output(u, 0.0, 1.0, self.n_grid, np.ascontiguousarray(w[:nc], dtype=float))
+        if self.n_play:
+            r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+            y = y + play_output(u, r, np.ascontiguousarray(w[nc:], dtype=float))
+        return y
 
 
 class RIH(LinearParamH):
@@ -297,12 +339,18 @@ class RIH(LinearParamH):
     def __init__(self, ridge: float = 1e-8, creep: bool = True, creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S):
         super().__init__(ridge, creep, creep_tau_s)
 
-    def _basis(self, u):
+    def _basis(self, u, stride=1):
         from selfsense.hysteresis.ri import RIModel, diagonal_constraint_basis
 
         ri = RIModel(input_scale=1.0)
-        Phi = ri.regressor(np.maximum(u, 0.0))
+        Phi = ri.regressor(np.maximum(u, 0.0))[::stride]   # 20 columns at full rate, then thinned
         return np.column_stack([Phi[:, :5], Phi[:, 5:] @ diagonal_constraint_basis()])
+
+    def _basis_dot(self, u, w):
+        from selfsense.hysteresis.ri import RIModel, diagonal_constraint_basis
+
+        ri = RIModel(b=w[:5], p=diagonal_constraint_basis() @ w[5:], input_scale=1.0)
+        return np.asarray(ri(np.maximum(u, 0.0)), dtype=float)
 
 
 class ModifiedPIH:

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["preisach_grid_features", "relaxation_bank"]
+__all__ = ["preisach_grid_features", "preisach_grid_output", "relaxation_bank", "relaxation_output"]
 
 _BIG = 1e300
 
@@ -31,14 +31,26 @@ def _prim(x, b0, top):
 
 
 @njit(cache=True)
-def preisach_grid_features(u, lo, hi, n):
-    """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it).
+def preisach_grid_features(u, lo, hi, n, stride=1):
+    return _grid(u, lo, hi, n, np.zeros(0), False, stride)
+
+
+@njit(cache=True)
+def preisach_grid_output(u, lo, hi, n, w):
+    """``F @ w`` of :func:`preisach_grid_features` without storing F: memory O(len(u)), not O(len(u) n^2)."""
+    return _grid(u, lo, hi, n, w, True, 1)[:, 0]
+
+
+@njit(cache=True)
+def _grid(u, lo, hi, n, w, weighted, stride):
+    """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it); with
+    ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample).
 
     Cell (i, j), j <= i, covers a in [g_i, g_i+1], b in [g_j, g_j+1] (half of it when i == j); its feature is the
     up-fraction of its area, in [0, 1]."""
     N = u.size
     nc = n * (n + 1) // 2
-    F = np.zeros((N, nc))
+    F = np.zeros((N, 1)) if weighted else np.zeros(((N + stride - 1) // stride, nc))
     h = (hi - lo) / n
     Ms = np.empty(4096)
     ms = np.empty(4096)
@@ -63,6 +75,9 @@ def preisach_grid_features(u, lo, hi, n):
                 ms[j] = x
                 K = j + 1
         prev = x
+        if k % stride != 0:
+            continue
+        row = k if weighted else k // stride
         # cell areas
         c = 0
         for i in range(n):
@@ -87,7 +102,10 @@ def preisach_grid_features(u, lo, hi, n):
                         continue
                     area += _prim(q1, b0, top) - _prim(q0, b0, top)
                 full = h * h if jb < i else 0.5 * h * h
-                F[k, c] = area / full
+                if weighted:
+                    F[row, 0] += w[c] * (area / full)
+                else:
+                    F[row, c] = area / full
                 c += 1
     return F
 
@@ -110,3 +128,43 @@ def relaxation_bank(u, dt: float, tau_s) -> np.ndarray:
     u = np.ascontiguousarray(u, dtype=float)
     cols = [_relax(u, -math.expm1(-dt / float(t))) for t in tau_s]
     return np.column_stack(cols) if cols else np.zeros((u.size, 0))
+
+
+def relaxation_output(u, dt: float, tau_s, w) -> np.ndarray:
+    """``relaxation_bank(u, dt, tau_s) @ w`` one column at a time (memory O(len(u)))."""
+    u = np.ascontiguousarray(u, dtype=float)
+    y = np.zeros(u.size)
+    for t, c in zip(tau_s, w):
+        if c != 0.0:
+            y += c * _relax(u, -math.expm1(-dt / float(t)))
+    return y
+
+
+@njit(cache=True)
+def play_output(u, r, w):
+    """``sum_i w_i P_{r_i}[u]`` (plays from z = 0), memory O(len(u))."""
+    z = np.zeros(r.size)
+    y = np.zeros(u.size)
+    for k in range(u.size):
+        x = u[k]
+        acc = 0.0
+        for i in range(r.size):
+            zi = max(x - r[i], min(x + r[i], z[i]))
+            z[i] = zi
+            acc += w[i] * zi
+        y[k] = acc
+    return y
+
+
+@njit(cache=True)
+def play_features(u, r, stride):
+    """Plays ``P_{r_i}[u]`` from z = 0, every ``stride``-th row (the state runs over every sample)."""
+    z = np.zeros(r.size)
+    F = np.zeros(((u.size + stride - 1) // stride, r.size))
+    for k in range(u.size):
+        x = u[k]
+        for i in range(r.size):
+            z[i] = max(x - r[i], min(x + r[i], z[i]))
+        if k % stride == 0:
+            F[k // stride, :] = z
+    return F

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import DegenerateFitError, LinearParamH, make_model, ridge_lstsq
+from . import DegenerateFitError, LinearParamH, fit_stride, make_model, ridge_lstsq
 
 log = logging.getLogger(__name__)
 
@@ -65,16 +65,18 @@ def _stack_extra(extras, lengths):
 
 
 def _cv_linear(model: LinearParamH, qs, ys, dt, E, folds, thin):
+    """Fold RMS of ``model``; ``folds`` and ``E`` are over the stacked rows of every ``fit_stride``-th sample."""
     model.prepare(qs, dt)
+    k = fit_stride([len(q) for q in qs])
     Xs, pen = [], None
     for q in qs:
-        X, pen = model.design(q, dt)
+        X, pen = model.design(q, dt, k)
         Xs.append(X)
     X = np.vstack(Xs)
     if E is not None:
         X = np.column_stack([X, E])
         pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
-    y = np.concatenate(ys)
+    y = np.concatenate([v[::k] for v in ys])
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     rms = []
@@ -133,16 +135,21 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     lengths = [len(q) for q in qs]
     free = np.ones(len(qs), bool) if free is None else np.asarray(free, bool)
     names = list(trial_names) if trial_names is not None else [f"segment {i}" for i in range(len(qs))]
+    k = fit_stride(lengths)
     E = _stack_extra(extras, lengths)
-    folds = blocked_folds(lengths, n_blocks)
+    E_rows = None if E is None else np.vstack([e[::k] for e in _split(E, lengths)])
+    folds = blocked_folds([len(q[::k]) for q in qs], n_blocks)
     table = []
     for kind, params in candidates:
         model = make_model(kind, **params)
         try:
             if isinstance(model, LinearParamH):
-                rms = _cv_linear(model, qs, ys, dt, E, folds, thin)
-            else:
+                rms = _cv_linear(model, qs, ys, dt, E_rows, folds, thin)
+            elif k == 1:
                 rms = _cv_qp(model, qs, ys, dt, E, folds, free, thin)
+            else:
+                raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
+                                 f"200000 samples only")
             status = "ok"
         except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
             rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
