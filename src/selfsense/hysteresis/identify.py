@@ -156,6 +156,11 @@ def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver
                     solver_opts=None, row_mask=None):
     """Identify a ModifiedPI y = Gamma[x] (eq. 42) by Kuhnen's QP (App. A). Returns (ModifiedPI, FitReport).
 
+    This is the raw operator fit: non-negative play weights make counter-clockwise, rising loops only. To fit a
+    piezo's H(q) (clockwise, falling with q in the eq. 55 convention) use ``selfsense.hysteresis.models.ModifiedPIH``
+    (``make_model("modified_pi").fit(q, v, dt)``), which builds the sign and linear gauge in, tries every installed
+    solver and refuses a fit worse than a straight line.
+
     x, y: 1-D input / output (any units, e.g. charge [C] and V_H [V]); dt [s] sample time.
     n_play: play operators incl. r = 0 (creep uses the same thresholds, eq. 61); n_sup: superposition
     operators incl. the identity; n_creep: creep eigenvalues m per threshold (eq. 40); creep=False drops K.
