@@ -50,7 +50,9 @@ fi
 
 mkdir -p "$STATE"/{log,spool/ctld,spool/d} /etc/slurm /run/munge /var/log/munge /var/lib/munge
 HOST="$(hostname -s)"
-CPUS="$(nproc)"
+# --all: GNU nproc honours OMP_NUM_THREADS, which a test process may have set to 1 (one BLAS thread); the node
+# must declare the machine's real CPUs or group jobs asking for 2 stay pending (PartitionConfig) for ever
+CPUS="$(nproc --all)"
 MEM_MB="$(awk '/MemTotal/ {print int($2/1024*0.9)}' /proc/meminfo)"
 
 # 2. slurm.conf (never overwrite a configuration that someone else wrote).
