@@ -20,14 +20,11 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["run_device", "aggregate", "aggregate_markdown", "DEFAULT_CONFIG"]
-
-#: estimator configuration of the benchmark: the pipeline defaults (config.yaml ``calibration``/``estimation``)
-DEFAULT_CONFIG: dict = {"calibration": {}, "estimation": {}}
+__all__ = ["run_device", "aggregate", "aggregate_markdown", "bench", "write_tables"]
 
 
 def _default_pipeline_config() -> dict:
-    """The ``calibration`` and ``estimation`` blocks of the packaged default configuration (config.yaml)."""
+    """Empty ``calibration`` / ``estimation`` blocks: the estimator's defaults, which are config.yaml's."""
     return {"calibration": {}, "estimation": {}}
 
 

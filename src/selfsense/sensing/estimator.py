@@ -309,39 +309,20 @@ def _candidates_for(h_model: str, cfg: "SensingConfig") -> tuple:
     return base + own
 
 
-def _insample(model, qs, ys, dt, E, thin: int = 16, drop=None) -> float:
+def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
     """RMS [V] of the least-squares residual of ``model`` on every ``thin``-th calibration row (leakage search);
-    ``drop``: boolean over the stacked rows, rows left out of the fit (a fold)."""
+    ``extras`` per segment; ``drop``: boolean over the stacked rows of all samples, rows left out of the fit."""
     from selfsense.hysteresis.models import fit_stride, ridge_lstsq
+    from selfsense.hysteresis.models.select import split_rows, stacked_design
 
-    model.prepare(qs, dt)
-    thin = max(thin, fit_stride([len(q) for q in qs]))
-    Xs, pen = [], None
-    for q in qs:
-        X, pen = model.design(q, dt, thin)
-        Xs.append(X)
-    X = np.vstack(Xs)
-    y = np.concatenate([np.asarray(v)[::thin] for v in ys])
-    if E is not None:
-        off, Es = 0, []
-        for q in qs:
-            Es.append(E[off:off + len(q)][::thin])
-            off += len(q)
-        X = np.column_stack([X, np.vstack(Es)])
-        pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
+    lengths = [len(q) for q in qs]
+    k = max(thin, fit_stride(lengths))
+    X, y, pen = stacked_design(model, qs, ys, dt, extras, k)
     if drop is not None:
-        keep = ~np.asarray(drop, bool)[::thin] if len(drop) != len(y) else ~np.asarray(drop, bool)
+        keep = ~np.concatenate([d[::k] for d in split_rows(np.asarray(drop, bool), lengths)])
         X, y = X[keep], y[keep]
     w = ridge_lstsq(X, y, pen, model.ridge)
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
-
-
-def _split_rows(mask, lengths):
-    out, off = [], 0
-    for L in lengths:
-        out.append(np.asarray(mask[off:off + L]))
-        off += L
-    return out
 
 
 def _force_only_selected(table: list, kind: str) -> list:
@@ -520,27 +501,21 @@ class SelfSensingEstimator:
         from scipy.optimize import minimize_scalar
 
         from selfsense.hysteresis.models import PreisachH, fit_stride
-        from selfsense.hysteresis.models.select import _cv_linear, _stack_extra, blocked_folds
+        from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
 
         def rows(g, cols=False):
             qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g, drift_cols=cols)
-            return qs, ys, _stack_extra(ex, [len(q) for q in qs]), dt
+            return qs, ys, ex, dt
 
         def insample(g, drop=None):
-            qs, ys, E, dt = rows(g, True)
-            m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
-            if drop is not None:   # stacked-row mask -> the rows _insample keeps
-                k = max(16, fit_stride([len(q) for q in qs]))
-                drop = np.concatenate([d[::k] for d in _split_rows(drop, [len(q) for q in qs])])
-            return _insample(m, qs, ys, dt, E, drop=drop)
+            qs, ys, ex, dt = rows(g, True)
+            return _insample(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, drop=drop)
 
         def cv(g, cols=False):
-            qs, ys, E, dt = rows(g, cols)
-            m = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
-            lengths = [len(q) for q in qs]
-            k = fit_stride(lengths)
-            E = None if E is None else np.vstack([e[::k] for e in _split_rows(E, lengths)])
-            return float(np.mean(_cv_linear(m, qs, ys, dt, E, blocked_folds([len(q[::k]) for q in qs], 3), 8)))
+            qs, ys, ex, dt = rows(g, cols)
+            k = fit_stride([len(q) for q in qs])
+            folds = blocked_folds([len(q[::k]) for q in qs], 3)
+            return float(np.mean(_cv_linear(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, folds, 8)))
 
         def search(drop=None):
             res = minimize_scalar(lambda g: insample(g, drop), bounds=(0.0, 50e-9), method="bounded",

@@ -33,8 +33,6 @@ elastic strain; CALIBRATION_NOTES: realistic rig magnitudes).
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .device import load_device
@@ -167,7 +165,7 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
         "n_actuators": n, "alpha_n_per_v": alpha, "cp_f": cp, "k_act_n_per_m": k,
         "mech_ratio": ratio, "mech_k_tip_n_per_m": k_tip, "mech_k_in_free_n_per_m": kin,
         "tip_opening_m": opening, "q_ref_c": q_ref, "h_lin_v": h_lin,
-        "h_family": family, "h_sign": sign, "h_params": list(hp) + [0.0] * 0,
+        "h_family": family, "h_sign": sign, "h_params": list(hp),
         "preisach_components": comps if comps else [list(c) for c in base.preisach_components],
         "ecreep_c_v": [c * ec_w for c in base.ecreep_c_v],
         "ecreep_tau_s": [t * ec_t for t in base.ecreep_tau_s],
@@ -222,11 +220,10 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
 
 def _peak_current(sc: dict) -> float:
     """Largest |dq/dt| [A] of the free-tip mixed and blocked-tip sine calibration drives (noise-free truth)."""
-    from .device import load_device as _ld
     from .effects import resolve_effects
     from .simulate import simulate_trial
 
-    dev = _ld(overrides=sc["device"])
+    dev = load_device(overrides=sc["device"])
     eff = resolve_effects(sc.get("effects") or {}, use_defaults=bool(sc.get("effects_defaults", False)))
     peak = 0.0
     for tr in sc["trials"]:
@@ -268,13 +265,12 @@ def device_trials(freq: float, amp: float, large_mm: float = 4.0, small_mm: floa
 def measure_free_stroke(scenario: dict) -> float:
     """Tip free displacement [m] at 150 V "measured once" on the simulated device: a 1 s ramp to 150 V and hold on a
     free tip, no noise needed (the truth's dx_ref at the end of the hold)."""
-    from .simulate import simulate_trial
-    from .device import load_device as _ld
     from .effects import resolve_effects
+    from .simulate import simulate_trial
 
-    dev = _ld(overrides=scenario["device"])
+    dev = load_device(overrides=scenario["device"])
     tr = {"trial": "stroke", "role": "calibration", "tip": "free", "reference": "displacement", "signal": "steps",
           "duration": 3.5, "levels": [1.0], "ramp_s": 0.5, "hold_s": 1.0, "amplitude": _V}
     eff = resolve_effects(scenario.get("effects") or {}, use_defaults=bool(scenario.get("effects_defaults", False)))
     _, truth = simulate_trial(tr, dev, eff, seed=0, index=0, sample_rate_hz=1000.0, substeps=4, effects_defaults=False)
-    return float(math.fsum([float(np.max(truth["dx_ref"].to_numpy()))]))
+    return float(np.max(truth["dx_ref"].to_numpy()))

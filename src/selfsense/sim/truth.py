@@ -112,7 +112,7 @@ def _ja_man(H, M, hp):
 @njit(cache=True)
 def _ja_step(u, hs, hp):
     """Integrate M_irr from hs[0] to u; returns (M_irr, M)."""
-    Ms, k, c, ac, u0 = hp[0], hp[2], hp[3], hp[4], hp[5]
+    k, c, ac, u0 = hp[2], hp[3], hp[4], hp[5]
     du_total = u - hs[0]
     m = int(math.ceil(abs(du_total) / _DU))
     mi = hs[1]
@@ -136,7 +136,6 @@ def _ja_step(u, hs, hp):
             H += dH
             for _ in range(2):
                 M = c * _ja_man(H, M, hp) + (1.0 - c) * mi
-        _ = Ms
     return mi, M
 
 
@@ -204,7 +203,7 @@ def truth_path(family: str, u, hp) -> np.ndarray:
     fam = family_code(family)
     if fam == 0:
         raise ValueError("truth_path: use selfsense.sim.preisach.preisach_path for the Preisach family")
-    hp = np.zeros(NPAR) + 0.0 if hp is None else _pad(hp)
+    hp = np.zeros(NPAR) if hp is None else _pad(hp)
     return _path(fam, np.ascontiguousarray(u, dtype=float), hp)
 
 

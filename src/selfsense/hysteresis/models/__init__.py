@@ -143,12 +143,9 @@ class LinearParamH:
         y = np.concatenate([w[::k] for w in vs])
         E = None
         if extra is not None:
-            if not isinstance(extra, (list, tuple)):
-                off, parts = 0, []
-                for x in qs:
-                    parts.append(np.asarray(extra, dtype=float).reshape(sum(len(z) for z in qs), -1)[off:off + len(x)])
-                    off += len(x)
-                extra = parts
+            if not isinstance(extra, (list, tuple)):   # stacked rows of all segments -> one array per segment
+                stacked = np.asarray(extra, dtype=float).reshape(sum(len(x) for x in qs), -1)
+                extra = np.split(stacked, np.cumsum([len(x) for x in qs])[:-1])
             E = np.vstack([np.asarray(e, dtype=float).reshape(len(x), -1)[::k] for e, x in zip(extra, qs)])
             X = np.column_stack([X, E])
             pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])

@@ -32,6 +32,7 @@ def _prim(x, b0, top):
 
 @njit(cache=True)
 def preisach_grid_features(u, lo, hi, n, stride=1):
+    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row."""
     return _grid(u, lo, hi, n, np.zeros(0), False, stride)
 
 

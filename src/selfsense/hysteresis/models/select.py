@@ -64,19 +64,36 @@ def _stack_extra(extras, lengths):
     return np.vstack([np.asarray(e, float).reshape(L, -1) for e, L in zip(extras, lengths)])
 
 
-def _cv_linear(model: LinearParamH, qs, ys, dt, E, folds, thin):
-    """Fold RMS of ``model``; ``folds`` and ``E`` are over the stacked rows of every ``fit_stride``-th sample."""
+def split_rows(a, lengths) -> list:
+    """Cut the stacked rows of ``a`` back into the segments of ``lengths`` samples."""
+    out, off = [], 0
+    for L in lengths:
+        out.append(a[off:off + L])
+        off += L
+    return out
+
+
+def stacked_design(model: LinearParamH, qs, ys, dt, extras, stride: int):
+    """``(X, y, penalised)``: ``[design | extra columns]`` and the targets of every ``stride``-th sample of every
+    segment, stacked (the operators run over every sample); ``extras`` is one array per segment, or None."""
     model.prepare(qs, dt)
-    k = fit_stride([len(q) for q in qs])
     Xs, pen = [], None
     for q in qs:
-        X, pen = model.design(q, dt, k)
+        X, pen = model.design(q, dt, stride)
         Xs.append(X)
     X = np.vstack(Xs)
-    if E is not None:
+    y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
+    if extras is not None:
+        E = np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)])
         X = np.column_stack([X, E])
         pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
-    y = np.concatenate([v[::k] for v in ys])
+    return X, y, pen
+
+
+def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin):
+    """Fold RMS of ``model``; ``extras`` per segment, ``folds`` over the stacked rows of every ``fit_stride``-th
+    sample."""
+    X, y, pen = stacked_design(model, qs, ys, dt, extras, fit_stride([len(q) for q in qs]))
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     rms = []
@@ -89,14 +106,6 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, E, folds, thin):
     return rms
 
 
-def _split(E, lengths):
-    out, off = [], 0
-    for L in lengths:
-        out.append(E[off:off + L])
-        off += L
-    return out
-
-
 def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
     """CV of a model without extra columns (modified PI): fitted on the first free-tip segment's training rows,
     then the extra columns regressed on the residual of the training rows of all segments."""
@@ -107,8 +116,6 @@ def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     rms = []
-    from selfsense.hysteresis.identify import fit_modified_pi_robust  # noqa: F401  (import errors surface here)
-
     for held in folds:
         m = (~held)[off0:off0 + lengths[i0]]
         model.fit_masked(qs[i0], ys[i0], dt, m)
@@ -137,14 +144,13 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     names = list(trial_names) if trial_names is not None else [f"segment {i}" for i in range(len(qs))]
     k = fit_stride(lengths)
     E = _stack_extra(extras, lengths)
-    E_rows = None if E is None else np.vstack([e[::k] for e in _split(E, lengths)])
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks)
     table = []
     for kind, params in candidates:
         model = make_model(kind, **params)
         try:
             if isinstance(model, LinearParamH):
-                rms = _cv_linear(model, qs, ys, dt, E_rows, folds, thin)
+                rms = _cv_linear(model, qs, ys, dt, extras, folds, thin)
             elif k == 1:
                 rms = _cv_qp(model, qs, ys, dt, E, folds, free, thin)
             else:
@@ -178,7 +184,7 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         log.warning(w)
     model = make_model(best["kind"], **best["params"])
     if isinstance(model, LinearParamH):
-        model.fit(qs, ys, dt, extra=None if E is None else _split(E, lengths))
+        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths))
         extra_coef = model.extra_coef_
     else:
         i0 = int(np.flatnonzero(free)[0])
