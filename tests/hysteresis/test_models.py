@@ -27,14 +27,14 @@ def _fast_kinds():
     return {"linear": {}, "pi": {"n_play": 6}, "preisach": {"n_grid": 6, "n_play": 3}, "ri": {}}
 
 
-@pytest.mark.parametrize("kind", ["linear", "pi", "preisach", "ri", "modified_pi"])
+@pytest.mark.parametrize("kind", ["linear", "pi", "preisach", "ri", "modified_pi", "duhem"])
 def test_common_model_contract(kind):
     """fit / predict / to_dict / from_dict round trip; prediction from JSON equals the fitted model's; the sample
     time stored is the data's; predict before fit raises."""
     q = _drive()
     P = play_operator(q / QREF, [0.1, 0.25])
     v = 60.0 * q / QREF + 6.0 * P[:, 0] + 3.0 * P[:, 1] + 0.5 * np.tanh(5 * (q / QREF - 0.4))
-    kw = _fast_kinds().get(kind, {"n_play": 6, "n_sup": 3, "n_creep": 2})
+    kw = _fast_kinds().get(kind, {"n_play": 6, "n_sup": 3, "n_creep": 2} if kind == "modified_pi" else {})
     with pytest.raises(RuntimeError):
         make_model(kind, **kw).predict(q)
     m = make_model(kind, **kw).fit(q, v, DT)
@@ -52,7 +52,7 @@ def test_common_model_contract(kind):
 
 
 def test_registry_lists_the_documented_kinds():
-    assert set(REGISTRY) == {"linear", "pi", "preisach", "ri", "modified_pi"}
+    assert set(REGISTRY) == {"linear", "pi", "preisach", "ri", "modified_pi", "duhem"}
     with pytest.raises(ValueError, match="unknown H model kind"):
         make_model("bogus")
     with pytest.raises(ValueError, match="unknown kind"):
@@ -137,6 +137,11 @@ def test_blocked_folds_partition_every_segment():
     total = np.sum(folds, axis=0)
     assert np.all(total == 1)
     assert folds[0][:3].all() and not folds[0][3] and folds[0][10:12].all()
+    # rotated: fold k holds out block (k + i) mod n of segment i, still a partition, never the same block twice
+    rot = blocked_folds([10, 7, 9], 3, rotate=True)
+    assert np.all(np.sum(rot, axis=0) == 1)
+    assert rot[0][:3].all() and rot[0][12:14].all() and not rot[0][10]     # block 0 of seg 0, block 1 of seg 1
+    assert rot[2][10:12].all() and not rot[2][:3].any()                     # the first block of seg 1 is in fold 2
 
 
 def test_selection_prefers_hysteresis_and_reports_baselines():

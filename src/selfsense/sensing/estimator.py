@@ -50,7 +50,7 @@ __all__ = [
 ]
 
 H_MODES = ("thesis", "onsite")
-H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi")
+H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
 REGRESSIONS = ("auto", "approx", "full")
 

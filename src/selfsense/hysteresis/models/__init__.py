@@ -29,7 +29,7 @@ import numpy as np
 
 from ._grid import play_features, play_output, preisach_grid_features, preisach_grid_output, relaxation_bank, relaxation_output
 
-__all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "h_from_dict",
+__all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
            "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError"]
 
 #: at most this many rows enter a least-squares fit: longer calibration records are thinned to every k-th sample
@@ -451,7 +451,9 @@ def loop_orientation(x, y) -> float:
     return 1.0 if area >= 0 else -1.0
 
 
-REGISTRY: dict[str, type] = {c.kind: c for c in (LinearH, PlayH, PreisachH, RIH, ModifiedPIH)}
+from .duhem import DuhemH  # noqa: E402  (uses the helpers above)
+
+REGISTRY: dict[str, type] = {c.kind: c for c in (LinearH, PlayH, PreisachH, RIH, ModifiedPIH, DuhemH)}
 
 
 def make_model(kind: str, **kw):

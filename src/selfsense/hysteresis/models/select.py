@@ -32,7 +32,12 @@ DEFAULT_CANDIDATES: tuple = (
     ("preisach", {"n_grid": 16, "n_play": 10, "ridge": 1e-3}),
     ("ri", {"ridge": 1e-8}),
     ("modified_pi", {"n_play": 12, "n_sup": 6, "n_creep": 3}),
+    ("duhem", {"degree": 3, "ridge": 1e-7}),
 )
+
+
+#: default fold layout of the selection (``blocked_folds(..., rotate=...)``)
+ROTATE_FOLDS = True
 
 
 @dataclass
@@ -43,16 +48,21 @@ class SelectionResult:
     warnings: list = field(default_factory=list)
 
 
-def blocked_folds(lengths, n_blocks: int) -> list[np.ndarray]:
-    """Boolean held-out masks over the stacked rows: fold k holds out the k-th contiguous block of every segment."""
+def blocked_folds(lengths, n_blocks: int, rotate: bool = False) -> list[np.ndarray]:
+    """Boolean held-out masks over the stacked rows: fold k holds out the k-th contiguous block of every segment, or
+    with ``rotate`` the ((k + i) mod n_blocks)-th block of segment i: every fold then leaves a different stretch of
+    each trial out, so that a part of the input history held out in one trial (the first rise from the relaxed state,
+    say) is visited by the training rows of another -- as when a new trial is predicted from the calibration
+    trials."""
     n = int(sum(lengths))
     folds = []
     for k in range(n_blocks):
         m = np.zeros(n, bool)
         off = 0
-        for L in lengths:
+        for i, L in enumerate(lengths):
             edges = np.linspace(0, L, n_blocks + 1).astype(int)
-            m[off + edges[k]:off + edges[k + 1]] = True
+            b = (k + i) % n_blocks if rotate else k
+            m[off + edges[b]:off + edges[b + 1]] = True
             off += L
         folds.append(m)
     return folds
@@ -130,8 +140,30 @@ def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
     return rms
 
 
+def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin):
+    """CV of a model that is not linear in its parameters but fits extra columns jointly and accepts a row mask
+    (``duhem``): fitted on the training rows of every segment (its state runs over every sample), scored on every
+    ``thin``-th held-out row."""
+    lengths = [len(q) for q in qs]
+    folds = blocked_folds(lengths, n_blocks, rotate=rotate)
+    y = np.concatenate(ys)
+    keep = np.zeros(len(y), bool)
+    keep[::thin] = True
+    rms = []
+    for held in folds:
+        # the model thins its own objective rows (contiguous rows keep its equation-error increments)
+        model.fit(qs, ys, dt, extra=extras, row_mask=split_rows(~held, lengths))
+        pred = np.concatenate([model.predict(q, dt) for q in qs])
+        if extras is not None and len(model.extra_coef_):
+            pred = pred + _stack_extra(extras, lengths) @ model.extra_coef_
+        ev = held & keep
+        rms.append(float(np.sqrt(np.mean((pred - y)[ev] ** 2))))
+    return rms
+
+
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
-                   thin: int = 4, trial_names=None, baseline_only_warn: bool = True) -> SelectionResult:
+                   thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
+                   rotate_folds: bool | None = None) -> SelectionResult:
     """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
     columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
 
@@ -144,13 +176,16 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     names = list(trial_names) if trial_names is not None else [f"segment {i}" for i in range(len(qs))]
     k = fit_stride(lengths)
     E = _stack_extra(extras, lengths)
-    folds = blocked_folds([len(q[::k]) for q in qs], n_blocks)
+    rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
+    folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
     table = []
     for kind, params in candidates:
         model = make_model(kind, **params)
         try:
             if isinstance(model, LinearParamH):
                 rms = _cv_linear(model, qs, ys, dt, extras, folds, thin)
+            elif getattr(model, "joint_extra", False):
+                rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k)
             elif k == 1:
                 rms = _cv_qp(model, qs, ys, dt, E, folds, free, thin)
             else:
@@ -183,7 +218,7 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     for w in warnings:
         log.warning(w)
     model = make_model(best["kind"], **best["params"])
-    if isinstance(model, LinearParamH):
+    if isinstance(model, LinearParamH) or getattr(model, "joint_extra", False):
         model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths))
         extra_coef = model.extra_coef_
     else:

@@ -1,0 +1,284 @@
+"""Generic Duhem (Coleman-Hodgdon) H(q) model: hysteresis whose branch slope depends on the output.
+
+Preisach-class models (PI, Preisach grid, RI) have *congruent* minor loops: between the same two input reversals the
+output changes by the same amount whatever the level it starts from. Many materials and devices do not behave so:
+in a Duhem model (Coleman & Hodgdon; Visintin, *Differential Models of Hysteresis*, ch. III) the slope of a branch is
+a function of the current input *and output*,
+
+    dv/dt = g_+(u, v) du/dt  (du/dt > 0),   dv/dt = g_-(u, v) du/dt  (du/dt < 0),
+
+so a branch that starts higher saturates sooner and minor loops at different levels differ. The class is
+rate-independent (dt cancels) and contains the saturating, clockwise and counter-clockwise loops alike. Nothing of
+a particular model is assumed: ``g_+`` and ``g_-`` are polynomials of total degree ``degree`` in the normalised input
+and output (``_duhem.duhem_terms``), identified from the calibration data.
+
+The H model (same input normalisation, creep bank and joint extra columns as :class:`LinearParamH`,
+thesis 000_18d138f03f1777c3.txt eqs. 38-41 for the creep operator):
+
+    H(q) = v[u] + sum_j w_j (u - z_j) + b,   u = (q - q_lo) / q_span,   v = 0 in the relaxed state,
+
+* initial ``g`` by equation error: the increments of the output left after a preliminary PI fit of the linear part
+  (creep, offset, extra columns) regressed on ``phi(u, v) du``, per direction; a second start from ``g = 0``;
+* refined by output error: ``min_c |P (y - v[u; c])|^2`` with ``P`` the projector on the complement of the
+  linear columns (creep, offset, extra) -- variable projection, exact because those columns do not depend on c --
+  by a trust-region least-squares solver with the exact sensitivities of the discrete map;
+* a small ridge on c (relative to the output range) keeps unidentified directions of the polynomial at zero.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from . import DEFAULT_CREEP_TAU_S, DegenerateFitError, _segments, fit_stride, ridge_lstsq
+from ._duhem import duhem_run, duhem_terms, n_terms
+from ._grid import play_features, relaxation_bank, relaxation_output
+
+__all__ = ["DuhemH"]
+
+#: at most this many rows enter the output-error residual (the map still runs over every sample)
+MAX_OE_ROWS = 12_000
+
+
+def _directions(u: np.ndarray, eps: float) -> np.ndarray:
+    """Input direction (+1 / -1) of each increment u[k] -> u[k+1], with the kernel's dead band ``eps``."""
+    s = np.empty(max(u.size - 1, 0), dtype=np.int8)
+    d, ext = 1, u[0]
+    for k in range(u.size - 1):
+        un = u[k + 1]
+        if d > 0:
+            if un > ext:
+                ext = un
+            elif ext - un > eps:
+                d, ext = -1, un
+        else:
+            if un < ext:
+                ext = un
+            elif un - ext > eps:
+                d, ext = 1, un
+        s[k] = d
+    return s
+
+
+class DuhemH:
+    """Generic Duhem H(q) model (module docstring); registry ``kind = "duhem"``."""
+
+    kind = "duhem"
+    #: fits extra columns jointly and accepts a row mask (blocked CV over every segment, ``select._cv_masked``)
+    joint_extra = True
+
+    def __init__(self, degree: int = 3, ridge: float = 1e-7, creep: bool = True,
+                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, eps: float = 2e-3, max_nfev: int = 30):
+        if int(degree) < 1:
+            raise ValueError(f"DuhemH: degree must be >= 1, got {degree!r}")
+        if not float(eps) >= 0:
+            raise ValueError(f"DuhemH: eps (direction dead band, normalised input) must be >= 0, got {eps!r}")
+        self.degree, self.ridge, self.creep = int(degree), float(ridge), bool(creep)
+        self.creep_tau_s = tuple(float(t) for t in creep_tau_s) if self.creep else ()
+        self.eps, self.max_nfev = float(eps), int(max_nfev)
+        self.coef_: np.ndarray | None = None
+        self.lin_coef_ = np.zeros(0)
+        self.extra_coef_ = np.zeros(0)
+        self.q_lo_, self.q_span_, self.v_lo_, self.v_span_ = 0.0, 1.0, 0.0, 1.0
+        self.dt_ = float("nan")
+        self.fit_report_: dict = {}
+
+    # -- helpers ------------------------------------------------------------------------------------------------------
+    def _u(self, q) -> np.ndarray:
+        return np.ascontiguousarray((np.asarray(q, dtype=float) - self.q_lo_) / self.q_span_)
+
+    def _linear_cols(self, u: np.ndarray, dt: float, stride: int = 1) -> np.ndarray:
+        """``[creep bank | 1]`` of one segment, every ``stride``-th row (the filters run over every sample)."""
+        cols = [relaxation_bank(u, dt, [t])[::stride] for t in self.creep_tau_s]
+        cols.append(np.ones((u[::stride].size, 1)))
+        return np.column_stack(cols)
+
+    def _run(self, u, c, stride=1, jac=False):
+        vmin = self.v_lo_ - 1.0 * self.v_span_
+        vmax = self.v_lo_ + 2.0 * self.v_span_
+        return duhem_run(u, np.ascontiguousarray(c, dtype=float), self.degree, self.v_lo_, self.v_span_, self.eps,
+                         vmin, vmax, int(stride), bool(jac))
+
+    # -- fit ----------------------------------------------------------------------------------------------------------
+    def fit(self, q, v, dt: float, extra=None, row_mask=None) -> "DuhemH":
+        """Fit on one or several segments (each from the relaxed state); ``extra``: joint columns (one array per
+        segment, or stacked), fitted without penalty; ``row_mask``: rows (one boolean array per segment, or stacked)
+        that enter the objective (blocked cross-validation). Runs with one BLAS thread: the matrices are small
+        (<= MAX_OE_ROWS x a few dozen), and threads contending for the cores made it ten times slower."""
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(1):
+            return self._fit(q, v, dt, extra, row_mask)
+
+    def _fit(self, q, v, dt, extra, row_mask) -> "DuhemH":
+        from scipy.optimize import least_squares
+
+        qs, vs = _segments(q, v)
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"H model fit: dt must be a positive sample time [s], got {dt!r}")
+        lengths = [len(x) for x in qs]
+        allq = np.concatenate(qs)
+        self.q_lo_ = float(min(0.0, allq.min()))
+        span = float(allq.max() - self.q_lo_)
+        if not span > 0:
+            raise DegenerateFitError("H model fit: the calibration charge does not vary (no excitation)")
+        self.q_span_ = span * 1.02
+        self.dt_ = float(dt)
+        us = [self._u(x) for x in qs]
+        Es = self._split(extra, lengths, "extra")
+        masks = self._split(row_mask, lengths, "row_mask")
+        masks = [np.ones(L, bool) if m is None else np.asarray(m, bool).reshape(L) for m, L in zip(masks, lengths)]
+        # rows of the objective: every k-th sample (the map runs over every sample), within the mask
+        k = max(fit_stride(lengths), int(np.ceil(sum(int(m.sum()) for m in masks) / MAX_OE_ROWS)))
+        Ls = [self._linear_cols(u, dt, k) if E is None else np.column_stack([self._linear_cols(u, dt, k), E[::k]])
+              for u, E in zip(us, Es)]
+        nl = Ls[0].shape[1] - (0 if Es[0] is None else Es[0].shape[1])
+        rows = [np.flatnonzero(m[::k]) for m in masks]
+        y = np.concatenate([vv[::k][r] for vv, r in zip(vs, rows)])
+        L = np.vstack([Lm[r] for Lm, r in zip(Ls, rows)])
+        if y.size < 4 * (2 * n_terms(self.degree) + L.shape[1]):
+            raise DegenerateFitError(f"duhem: {y.size} fit rows are too few for {2 * n_terms(self.degree)} + "
+                                     f"{L.shape[1]} parameters")
+        # 1. preliminary PI fit of the linear part -> state estimate v_eq = y - L beta on the strided rows
+        P = np.vstack([play_features(u, np.arange(1, 11) / 10.0, k)[r] for u, r in zip(us, rows)])
+        U = np.concatenate([u[::k][r] for u, r in zip(us, rows)])
+        X0 = np.column_stack([P, U, L])
+        pen = np.concatenate([np.ones(P.shape[1], bool), np.zeros(1 + L.shape[1], bool)])
+        b0 = ridge_lstsq(X0, y, pen, 1e-6)[P.shape[1] + 1:]
+        v_eq = [vv[::k] - Lm @ b0 for vv, Lm in zip(vs, Ls)]
+        both = np.concatenate([ve[m[::k]] for ve, m in zip(v_eq, masks)])
+        lo, hi = float(np.min(both)), float(np.max(both))
+        if not hi > lo:
+            raise DegenerateFitError("duhem: the calibration output does not vary")
+        self.v_lo_ = lo - 0.05 * (hi - lo)
+        self.v_span_ = 1.1 * (hi - lo)
+        c0 = self._equation_error([u[::k] for u in us], v_eq, [m[::k] for m in masks])
+        # 2. output error with the linear columns projected out (variable projection)
+        Qf, _ = np.linalg.qr(L)
+        nb = 2 * n_terms(self.degree)
+        lam = np.sqrt(self.ridge * y.size) * (1.0 / self.v_span_)   # c ~ v_span: relative ridge
+
+        def resid_jac(c, want_jac):
+            Vs, Js = [], []
+            for u, r in zip(us, rows):
+                Vk, Jk = self._run(u, c, k, want_jac)
+                Vs.append(Vk[r])
+                if want_jac:
+                    Js.append(Jk[r])
+            e = y - np.concatenate(Vs)
+            e = e - Qf @ (Qf.T @ e)
+            if not want_jac:
+                return np.concatenate([e, lam * c]), None
+            J = -np.vstack(Js)
+            J = J - Qf @ (Qf.T @ J)
+            return np.concatenate([e, lam * c]), np.vstack([J, lam * np.eye(nb)])
+
+        # two starts (the equation-error estimate and g = 0, a flat state): the output-error objective has local
+        # minima; the lower one is kept
+        best = None
+        for start in (c0, np.zeros(nb)):
+            sol = least_squares(lambda c: resid_jac(c, False)[0], start, jac=lambda c: resid_jac(c, True)[1],
+                                method="trf", x_scale="jac", max_nfev=self.max_nfev)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        sol = best
+        c = sol.x
+        Vall = np.concatenate([self._run(u, c, k)[0][r] for u, r in zip(us, rows)])
+        beta, *_ = np.linalg.lstsq(L, y - Vall, rcond=None)
+        self.coef_ = np.asarray(c, float)
+        self.lin_coef_ = beta[:nl]
+        self.extra_coef_ = beta[nl:]
+        res = y - Vall - L @ beta
+        self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(res**2))), "n_samples": int(y.size), "row_stride": k,
+                            "n_parameters": int(nb + L.shape[1]), "nfev": int(sol.nfev), "status": int(sol.status),
+                            "solver": "variable-projection trust-region least squares (output error)"}
+        return self
+
+    @staticmethod
+    def _split(a, lengths, name):
+        if a is None:
+            return [None] * len(lengths)
+        if isinstance(a, (list, tuple)):
+            if len(a) != len(lengths):
+                raise ValueError(f"duhem: {name} has {len(a)} segments, q has {len(lengths)}")
+            return [None if x is None else np.asarray(x, float).reshape(L, -1) if name == "extra"
+                    else np.asarray(x) for x, L in zip(a, lengths)]
+        arr = np.asarray(a)
+        arr = arr.reshape(sum(lengths), -1) if name == "extra" else arr.reshape(sum(lengths))
+        out = np.split(arr, np.cumsum(lengths)[:-1])
+        return [x.astype(float) if name == "extra" else x for x in out]
+
+    def _equation_error(self, us, v_eq, masks) -> np.ndarray:
+        """Per-direction least squares of the output increments on ``phi(u, v) du`` (midpoint values, increments of
+        ``m`` samples that do not straddle a reversal)."""
+        nb = n_terms(self.degree)
+        rowsA, rowsb = [], []
+        phi = np.empty(nb)
+        dphi = np.empty(nb)
+        for u, ve, msk in zip(us, v_eq, masks):
+            s = _directions(u, self.eps)
+            m = max(1, int(u.size // 3000))
+            i0 = np.arange(0, u.size - m, m)
+            i1 = i0 + m
+            ok = msk[i0] & msk[i1]
+            # the direction must be the same over the increment
+            cs = np.concatenate([[0], np.cumsum(s != 1)])
+            same = (cs[i1] - cs[i0] == 0) | (cs[i1] - cs[i0] == m)
+            ok &= same
+            for a, b in zip(i0[ok], i1[ok]):
+                du = u[b] - u[a]
+                if du == 0:
+                    continue
+                x = min(max(u[a] + u[b] - 1.0, -1.5), 1.5)
+                w = min(max((ve[a] + ve[b] - 2 * self.v_lo_) / self.v_span_ - 1.0, -1.5), 1.5)
+                duhem_terms(x, w, self.degree, phi, dphi)
+                row = np.zeros(2 * nb)
+                off = 0 if s[a] > 0 else nb
+                row[off:off + nb] = phi * du
+                rowsA.append(row)
+                rowsb.append(ve[b] - ve[a])
+        if len(rowsb) < 4 * nb:
+            return np.zeros(2 * nb)
+        A = np.asarray(rowsA)
+        b = np.asarray(rowsb)
+        return ridge_lstsq(A, b, np.ones(A.shape[1], bool), 1e-8)
+
+    # -- evaluation ---------------------------------------------------------------------------------------------------
+    def predict(self, q, dt: float | None = None) -> np.ndarray:
+        """H [V] from the relaxed state at sample time ``dt`` [s] (default ``dt_``; the creep bank's time constants
+        are in seconds, the Duhem map is rate-independent)."""
+        if self.coef_ is None:
+            raise RuntimeError("DuhemH.predict called before fit()")
+        dt = self.dt_ if dt is None else float(dt)
+        u = self._u(q)
+        y = self._run(u, self.coef_)[0]
+        nc = len(self.creep_tau_s)
+        if nc:
+            y = y + relaxation_output(u, dt, self.creep_tau_s, self.lin_coef_[:nc])
+        return y + self.lin_coef_[nc]
+
+    def __call__(self, q) -> np.ndarray:
+        return self.predict(q)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "params": self._params(), "q_lo": self.q_lo_, "q_span": self.q_span_,
+                "v_lo": self.v_lo_, "v_span": self.v_span_, "dt": self.dt_,
+                "coef": None if self.coef_ is None else [float(x) for x in self.coef_],
+                "lin_coef": [float(x) for x in self.lin_coef_], "extra_coef": [float(x) for x in self.extra_coef_]}
+
+    def _params(self) -> dict:
+        return {"degree": self.degree, "ridge": self.ridge, "creep": self.creep, "creep_tau_s": list(self.creep_tau_s),
+                "eps": self.eps, "max_nfev": self.max_nfev}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "DuhemH":
+        m = cls(**dict(d.get("params", {})))
+        m.q_lo_, m.q_span_ = float(d["q_lo"]), float(d["q_span"])
+        m.v_lo_, m.v_span_, m.dt_ = float(d["v_lo"]), float(d["v_span"]), float(d["dt"])
+        m.coef_ = None if d.get("coef") is None else np.asarray(d["coef"], dtype=float)
+        m.lin_coef_ = np.asarray(d.get("lin_coef", []), dtype=float)
+        m.extra_coef_ = np.asarray(d.get("extra_coef", []), dtype=float)
+        return m
+
+    def label(self) -> str:
+        return f"duhem(degree={self.degree}, ridge={self.ridge:g}{', creep' if self.creep else ''})"
