@@ -127,3 +127,20 @@ def test_selection_chooses_duhem_only_where_it_wins():
           for q in qs]
     res = select_h_model(qs, ys, DT, candidates=cands)
     assert res.model.kind in ("pi", "preisach")
+
+
+def test_a_non_convex_model_must_win_by_more_than_one_standard_error(monkeypatch):
+    """The one-standard-error rule of the selection: a Duhem CV mean lower than the Preisach one by less than the
+    standard error of the paired fold differences selects the Preisach model; a clear win selects the Duhem."""
+    import selfsense.hysteresis.models.select as S
+
+    folds = {"linear": [3.0] * 5, "preisach": [0.40, 0.45, 0.50, 0.42, 0.48]}
+    monkeypatch.setattr(S, "_cv_linear", lambda model, *a, **k: folds[model.kind])
+    monkeypatch.setattr(S, "_cv_masked", lambda model, *a, **k: folds["duhem"])
+    q = _drive(3000, seed=9)
+    v = _saturating_duhem(q)
+    cands = (("linear", {}), ("preisach", {"n_grid": 6}), ("duhem", {"degree": 2}))
+    folds["duhem"] = [0.30, 0.55, 0.35, 0.52, 0.48]     # mean 0.440 < 0.450, paired differences too noisy
+    assert select_h_model([q], [v], DT, candidates=cands).model.kind == "preisach"
+    folds["duhem"] = [0.10, 0.12, 0.11, 0.09, 0.13]     # a clear win
+    assert select_h_model([q], [v], DT, candidates=cands).model.kind == "duhem"

@@ -64,6 +64,8 @@ class DuhemH:
     """Generic Duhem H(q) model (module docstring); registry ``kind = "duhem"``."""
 
     kind = "duhem"
+    #: fitted by a non-convex search: the selection keeps it only where it wins clearly (select.select_h_model)
+    convex = False
     #: fits extra columns jointly and accepts a row mask (blocked CV over every segment, ``select._cv_masked``)
     joint_extra = True
 

@@ -5,6 +5,9 @@ operators always run over the whole record from the relaxed state (their state d
 is measured), only the rows that enter the least-squares fit are restricted: this is the blocked CV of
 time-series models (no leakage of the held-out *output*). The score is the RMS of the held-out residual [V].
 
+A model fitted by a non-convex search (``convex = False``: ``duhem``) is selected only if it beats the best convex
+candidate by more than one standard error of the paired fold differences.
+
 Every selection table contains the straight line (``linear``) and the signed-weight PI baseline; a selected model
 that does not beat the straight line out of sample raises :class:`DegenerateFitError`, one that does not beat the
 PI baseline is reported with a warning (``warnings`` of the result), naming the trials.
@@ -203,6 +206,19 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
                                  f"{names}: " + "; ".join(f"{r['label']}: {r['status']}" for r in table))
     best = min(ok, key=lambda r: r["cv_rms_mean_v"])
+    if not getattr(make_model(best["kind"], **best["params"]), "convex", True):
+        # a model fitted by a non-convex search (local minima, a state that can wander where no data were) is kept
+        # only if it beats the best convex candidate clearly: by more than one standard error of the paired fold
+        # differences (the one-standard-error rule, Hastie, Tibshirani & Friedman, Elements of Statistical
+        # Learning, sec. 7.10), else the convex one is selected
+        convex = [r for r in ok if getattr(make_model(r["kind"], **r["params"]), "convex", True)
+                  and r["kind"] != "linear"]
+        if convex:
+            alt = min(convex, key=lambda r: r["cv_rms_mean_v"])
+            d = np.asarray(alt["cv_rms_v"]) - np.asarray(best["cv_rms_v"])
+            se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
+            if not float(np.mean(d)) > se:
+                best = alt
     best["selected"] = True
     warnings = []
     lin = next((r for r in ok if r["kind"] == "linear"), None)
