@@ -36,6 +36,7 @@ DEFAULT_CANDIDATES: tuple = (
     ("ri", {"ridge": 1e-8}),
     ("modified_pi", {"n_play": 12, "n_sup": 6, "n_creep": 3}),
     ("duhem", {"degree": 3, "ridge": 1e-7}),
+    ("duhem", {"degree": 3, "ridge": 1e-7, "creep": False}),
 )
 
 
