@@ -53,9 +53,9 @@ def test_family_truth_has_hysteresis_and_no_exactly_linear_branch(device):
 
 
 #: out-of-sample RMS [V] of the selected model against the truth V_H (up to the linear gauge), per family;
-#: measured on this seed (pytest -s tests/sim/test_families.py -k recovers): preisach 0.009, bouc_wen 0.49,
-#: gpi 0.018, jiles_atherton 0.11 V
-TOL_V = {"preisach": 0.05, "bouc_wen": 0.8, "gpi": 0.08, "jiles_atherton": 0.3}
+#: measured on this seed (pytest -s tests/sim/test_families.py -k recovers): preisach 0.009, bouc_wen 0.013 (the
+#: Duhem model; 0.49 V with the Preisach-class models alone), gpi 0.018, jiles_atherton 0.097 V
+TOL_V = {"preisach": 0.05, "bouc_wen": 0.06, "gpi": 0.08, "jiles_atherton": 0.3}
 
 
 def test_selected_h_recovers_each_family_out_of_sample(device):
