@@ -1,6 +1,8 @@
 """``selfsense gap ...``: the sim-to-real gap diagnostic and its blind benchmark.
 
   selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator sensing|sensing_ri|fast] [--seed S] [--n-boot B]
+  selfsense gap blind --n N --seed S --out DIR [--jobs J]        (stage-wise diagnostic, blind, device families)
+  selfsense gap blind-calibrate --n N --seed S --out FILE.json [--jobs J]     (its null thresholds)
   selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full] [--sim device|toy]
                           [--estimator sensing_ri|sensing|fast] [--jobs J]
   selfsense gap scenario --i I --seed S --out FILE.json [--tier fast|full] [--estimator ...]   (one case)
@@ -89,6 +91,37 @@ def _calibrate(a) -> int:
     return 0
 
 
+def _blind(a) -> int:
+    from selfsense.io.outputs import MARKER, check_output_dir, output_lock
+
+    from .blind import load_stage_thresholds, run_campaign
+
+    out = Path(a.out)
+    cmd = f"selfsense gap blind --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
+    thr = load_stage_thresholds(a.thresholds) if a.thresholds else None
+    with output_lock(out):
+        check_output_dir(out, force=a.force)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / MARKER).write_text("written by selfsense gap blind\n")
+        sc = run_campaign(a.n, a.seed, a.jobs, out, cmd, thresholds=thr)
+    print(f"{a.n} cases in {sc['seconds']:.0f} s; family_top1={sc['family_top1']:.3f} "
+          f"member_top1={sc['member_top1']:.3f} false_alarm={sc['false_alarm_rate']:.3f} "
+          f"open_set={sc['open_set_flagged']:.3f} shrink_error={sc['median_shrink_error']:.3f} -> {out}/scores.md")
+    return 0
+
+
+def _blind_calibrate(a) -> int:
+    from selfsense.io import atomic_write_text
+
+    from .blind import calibrate
+
+    doc = calibrate(a.n, a.seed, a.jobs)
+    doc["command"] = f"selfsense gap blind-calibrate --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
+    atomic_write_text(a.out, json.dumps(doc, indent=1, sort_keys=True, default=float) + "\n")
+    print(f"stage thresholds from {a.n} effect-free cases (T = {doc['T']:.3f}) -> {a.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     import os
 
@@ -98,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(var, "1")
     p = argparse.ArgumentParser(prog="selfsense gap", allow_abbrev=False,
                                 description="sim-to-real gap diagnostic (docs/gap.md)")
-    sub = p.add_subparsers(dest="cmd", required=True, metavar="{diagnose,benchmark,scenario,aggregate,calibrate}")
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="{diagnose,blind,blind-calibrate,benchmark,scenario,aggregate,calibrate}")
     d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)", description="diagnose one dataset (any dataset; truth folder optional)", allow_abbrev=False)
     d.add_argument("dataset_dir", help="raw dataset folder (rig.yaml, trials.csv, logs); a truth folder beside it is optional")
     d.add_argument("--out", required=True, help="output folder (attribution.csv, budget.csv, verdict.json, figures)")
@@ -145,6 +178,25 @@ def main(argv: list[str] | None = None) -> int:
                    help="nominal model whose thresholds are calibrated (default sensing_ri)")
     c.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
     c.set_defaults(fn=_calibrate)
+    bl = sub.add_parser("blind", help="blind check of the stage-wise diagnostic across device families",
+                        description="blind check of the stage-wise diagnostic across device families "
+                                    "(docs/gap.md, 'Stage-wise diagnostic')", allow_abbrev=False)
+    bl.add_argument("--n", type=int, required=True, help="number of blind cases (families in turn)")
+    bl.add_argument("--seed", type=int, required=True, help="seed of the case draw")
+    bl.add_argument("--out", required=True, help="output folder (scores.md, scores.json, cases.jsonl.gz)")
+    bl.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
+    bl.add_argument("--thresholds", default=None, help="stage thresholds JSON (default: the packaged ones)")
+    bl.add_argument("--force", action="store_true", help="replace --out even if selfsense did not create it")
+    bl.set_defaults(fn=_blind)
+    bc = sub.add_parser("blind-calibrate", help="null thresholds of the stage-wise diagnostic",
+                        description="null thresholds of the stage-wise diagnostic from effect-free cases over the "
+                                    "device families", allow_abbrev=False)
+    bc.add_argument("--n", type=int, default=200, help="effect-free cases (default 200; families in turn)")
+    bc.add_argument("--seed", type=int, default=1, help="seed of the null cases (default 1; keep it apart from the "
+                    "campaign's)")
+    bc.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
+    bc.add_argument("--out", required=True, help="output thresholds JSON")
+    bc.set_defaults(fn=_blind_calibrate)
     a = p.parse_args(argv)
     return int(a.fn(a) or 0)
 

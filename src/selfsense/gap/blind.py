@@ -1,0 +1,320 @@
+"""Blind check of the stage-wise diagnostic across device families (GAP_DIAGNOSIS.md sec. 4; issue: stages).
+
+Every case draws a device family (Preisach, Bouc-Wen, generalised PI, Jiles-Atherton, in turn), a device
+(:func:`selfsense.sim.families.draw_device`), and effects (0 ~20 %, 1 ~50 %, 2-3 ~20 %, open-set ~10 %; magnitudes
+log-uniform 0.3x-30x the reference of :data:`selfsense.gap.benchmark.SIM_EFFECTS`, physical units in the record).
+The diagnostic (:func:`selfsense.gap.stages.diagnose_stages`) sees the dataset only.
+
+Truth, counterfactual and per stage: the same device, drive and noise are re-simulated without each effect (the
+others kept); the effect's *stage gap* in stage s is ``(r_s(with) - r_s(without)) / r_s(without)``, r_s the
+held-out RMS of the stage's nominal model. The *noise floor* of a stage is the RMS over effect-free cases of the
+relative change of r_s when only the noise realisation changes, divided by sqrt 2. An effect is *present* when its
+stage gap exceeds 3 floors in some stage (its home stage is the one with the largest gap in floors): an effect the
+measured signals do not show is not counted. Its *tip consequence* is the change of the held-out tip error (fast
+stand-in estimator, % of range) when it is removed, reported beside it.
+
+Scores (:func:`score`): family / member top-1 (the diagnostic's top effect against the present effect with the
+largest gap in floors), false alarms (effect-free cases with any accepted member), open-set cases flagged
+"unexplained", and the shrink error |predicted - true| / true of the top effect's stage shrink.
+"""
+from __future__ import annotations
+
+import gzip
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .blindsim import FAMILIES, simulate_family_case
+from .stages import MEMBERS, STAGES, diagnose_stages, effect_of
+
+__all__ = ["draw_case", "run_case", "null_gains", "calibrate", "score", "run_campaign", "load_stage_thresholds",
+           "TARGETS"]
+
+T_CASE, FS_CASE = 10.0, 400.0
+TARGETS = {"family_top1": (">=", 0.95), "member_top1": (">=", 0.85), "false_alarm_rate": ("<=", 0.05),
+           "median_shrink_error": ("<=", 0.15), "open_set_flagged": (">=", 0.70)}
+THRESHOLDS_FILE = Path(__file__).with_name("stage_thresholds.json")
+#: smallest gain scale per stage: the relay-short segments (holds) are long, noise-only records with a tight null
+FLOOR_BY_STAGE = {"holds": 0.005}
+
+
+def draw_case(i: int, seed: int, open_set_rate: float = 0.1) -> dict:
+    """Family, device seed and effects of case ``i`` of a campaign ``seed`` (deterministic)."""
+    from .benchmark import draw_effects
+
+    rng = np.random.default_rng([int(seed), int(i), 31])
+    eff = draw_effects(rng, "device", open_set_rate)
+    return {"family": FAMILIES[int(i) % len(FAMILIES)], "device_seed": int(seed) * 100_003 + int(i),
+            "noise_seed": int(seed) * 7_919 + int(i), "effects": eff}
+
+
+def _tip_error(trials, meta, rig) -> float:
+    """Held-out tip error [% of range] of the fast stand-in estimator (validation trials, Table 3 style)."""
+    from .model import FastSensingEstimator
+
+    est = FastSensingEstimator(rig=rig).fit(trials, meta)
+    errs = []
+    for t, m in meta.iterrows():
+        if m["role"] != "validation":
+            continue
+        df = trials[t]
+        e = est.estimate(df)
+        on = df["relay"].to_numpy() < 0.5
+        ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
+        y = df[ref].to_numpy(float)[on]
+        errs.append(100.0 * float(np.mean(np.abs(e[col].to_numpy(float)[on] - y))) / (float(np.ptp(y)) or 1.0))
+    return float(np.mean(errs))
+
+
+def _residuals(trials, meta, rig) -> dict:
+    from .stages import stage_residuals
+
+    return stage_residuals(trials, meta, rig)
+
+
+def run_case(i: int, seed: int, thresholds: dict | None = None, case: dict | None = None,
+             truth: bool = True) -> dict:
+    """One blind case: simulate, diagnose (dataset only), then the counterfactual truth per stage."""
+    c = draw_case(i, seed) if case is None else case
+    fam, ds, ns, eff = c["family"], c["device_seed"], c["noise_seed"], c["effects"]
+    thr = load_stage_thresholds() if thresholds is None else thresholds
+    t0 = time.perf_counter()
+    tr, me, rig = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE)
+    d = diagnose_stages(tr, me, rig, thr)
+    t_diag = time.perf_counter() - t0
+    rec = {"case": int(i), "seed": int(seed), "family": fam, "manifest": c,
+           "prediction": {"top": d["top"], "effects": d["effects"], "unexplained": d["unexplained"],
+                          "stages": {s: {k: v for k, v in st.items() if k not in ("trials",)}
+                                     for s, st in d["stages"].items()}},
+           "seconds": {"simulate_diagnose": t_diag}}
+    if not truth:
+        return rec
+    r_with = {s: st["rms_nominal"] for s, st in d["stages"].items() if st.get("observed")}
+    without = {}
+    tip_without = {}
+    for e in sorted(eff):
+        tr2, me2, rig2 = simulate_family_case(fam, ds, {k: v for k, v in eff.items() if k != e}, ns, T_CASE, FS_CASE)
+        without[e] = _residuals(tr2, me2, rig2)
+        tip_without[e] = _tip_error(tr2, me2, rig2)
+    trn, men, rign = simulate_family_case(fam, ds, {}, ns + 104_729, T_CASE, FS_CASE)
+    r_noise = _residuals(trn, men, rign)
+    if eff:
+        tr0, me0, rig0 = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE)
+        r_null = _residuals(tr0, me0, rig0)
+        tip_null = _tip_error(tr0, me0, rig0)
+    else:
+        r_null, tip_null = r_with, _tip_error(tr, me, rig)
+    rec["truth"] = {"r_with": r_with, "r_without": without, "r_null": r_null, "r_noise": r_noise,
+                    "tip_with": _tip_error(tr, me, rig) if eff else tip_null, "tip_without": tip_without,
+                    "tip_null": tip_null,
+                    "open_set": any(e.startswith("open.") for e in eff)}
+    rec["seconds"]["truth"] = time.perf_counter() - t0 - t_diag
+    return rec
+
+
+# ------------------------------------------------------------------------------------------------ thresholds
+def null_gains(i: int, seed: int) -> dict:
+    """Member and generic gains alone over the nominal model, per stage, on an effect-free case."""
+    from .stages import _context, attach_force_estimate, build_stage, stage_gains, stage_signals
+
+    c = draw_case(i, seed)
+    tr, me, rig = simulate_family_case(c["family"], c["device_seed"], {}, c["noise_seed"], T_CASE, FS_CASE)
+    sigs = stage_signals(tr, me, rig)
+    attach_force_estimate(sigs, tr, me, rig)
+    ctx = _context(sigs)
+    out = {"family": c["family"]}
+    for st in STAGES:
+        sm = build_stage(st, sigs, ctx)
+        if sm is None:
+            continue
+        g = stage_gains(sm)
+        for k, v in g.items():
+            out[k if k != "generic" else f"generic@{st}"] = float(v)
+    return out
+
+
+def calibrate(n: int, seed: int, jobs: int = 1, q: float = 0.95, floor: float = 0.02) -> dict:
+    """Null thresholds from ``n`` effect-free cases (families in turn): per member the scale
+    s_m = max(q-quantile of its null gains, ``floor``); one multiplier T = q-quantile over the cases of
+    max_m g_m / s_m (studentised max statistic: on the null sample at most 1 - q of the cases have any member
+    above threshold = family-wise correction); threshold_m = T s_m. Generic thresholds per stage: q-quantile."""
+    rows = _map(null_gains, [(i, seed) for i in range(n)], jobs)
+    members = list(MEMBERS)
+    G = np.array([[r.get(m, np.nan) for m in members] for r in rows], float)
+    fl = [FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor) for m in members]
+    s = np.array([max(float(np.nanquantile(G[:, j], q)), fl[j]) for j in range(len(members))])
+    T = float(np.nanquantile(np.nanmax(G / s, axis=1), q))
+    thr = {m: float(T * s[j]) for j, m in enumerate(members)}
+    for st in STAGES:
+        g = [r[f"generic@{st}"] for r in rows if f"generic@{st}" in r]
+        thr[f"generic@{st}"] = max(float(np.quantile(g, q)), floor) if g else float("inf")
+    return {"thresholds": thr, "T": T, "scale": dict(zip(members, s.tolist())), "n": n, "seed": seed, "q": q,
+            "families": {f: sum(r["family"] == f for r in rows) for f in FAMILIES}, "null_gains": rows}
+
+
+def load_stage_thresholds(path: Path | None = None) -> dict:
+    p = Path(path or THRESHOLDS_FILE)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no stage thresholds; make them with `selfsense gap blind-calibrate "
+                                f"--n 200 --seed 1 --out {p}`")
+    d = json.loads(p.read_text())
+    return d["thresholds"]
+
+
+def _map(fn, args, jobs):
+    if jobs <= 1:
+        return [fn(*a) for a in args]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(jobs) as ex:
+        return list(ex.map(_star, [(fn, a) for a in args], chunksize=1))
+
+
+def _star(x):
+    fn, a = x
+    return fn(*a)
+
+
+# ------------------------------------------------------------------------------------------------ scoring
+def _floors(records) -> dict:
+    out = {}
+    for st in STAGES:
+        d = []
+        for r in records:
+            t = r.get("truth")
+            if t and st in t["r_noise"] and st in t["r_null"] and t["r_null"][st] > 0:
+                d.append((t["r_noise"][st] - t["r_null"][st]) / t["r_null"][st])
+        out[st] = float(np.sqrt(np.mean(np.square(d)) / 2.0)) if d else float("nan")
+    return out
+
+
+def case_truth(r: dict, floors: dict, k: float = 3.0) -> dict:
+    """Present effects of a record with their home stage, gap in floors and true stage shrink."""
+    t = r["truth"]
+    out = {}
+    for e, rw in t["r_without"].items():
+        best = None
+        for st, r0 in rw.items():
+            if st not in t["r_with"] or not r0 > 0 or not floors.get(st, 0) > 0:
+                continue
+            gap = (t["r_with"][st] - r0) / r0
+            z = gap / floors[st]
+            if best is None or z > best["z"]:
+                best = {"effect": e, "stage": st, "gap": gap, "z": z, "shrink_true": t["r_with"][st] - r0,
+                        "tip_consequence": t["tip_with"] - t["tip_without"][e]}
+        if best and best["z"] > k:
+            out[e] = best
+    return out
+
+
+def score(records: list[dict], k: float = 3.0) -> dict:
+    floors = _floors(records)
+    fam = lambda e: e.split(".")[0]  # noqa: E731
+    n_fam = n_mem = n_lib = 0
+    fa = n_null = 0
+    n_open = n_open_flag = 0
+    shrink_err, tipc = [], []
+    per_family = {f: {"lib": 0, "fam_ok": 0, "mem_ok": 0, "null": 0, "fa": 0} for f in FAMILIES}
+    per_effect: dict = {}
+    confusion: dict = {}
+    for r in records:
+        pred = r["prediction"]
+        eff = r["manifest"]["effects"]
+        pf = per_family[r["family"]]
+        if not eff:
+            n_null += 1
+            pf["null"] += 1
+            alarm = bool(pred["effects"])
+            fa += alarm
+            pf["fa"] += alarm
+            continue
+        pres = case_truth(r, floors, k)
+        if r["truth"]["open_set"]:
+            if pres:
+                n_open += 1
+                n_open_flag += bool(pred["unexplained"])
+            continue
+        if not pres:
+            continue
+        top = max(pres.values(), key=lambda x: x["z"])
+        n_lib += 1
+        pf["lib"] += 1
+        ptop = pred["top"]
+        okf = ptop is not None and fam(ptop) == fam(top["effect"])
+        okm = ptop == top["effect"]
+        n_fam += okf
+        n_mem += okm
+        pf["fam_ok"] += okf
+        pf["mem_ok"] += okm
+        pe = per_effect.setdefault(top["effect"], {"n": 0, "member_ok": 0, "family_ok": 0})
+        pe["n"] += 1
+        pe["member_ok"] += okm
+        pe["family_ok"] += okf
+        confusion.setdefault(top["effect"], {}).setdefault(str(ptop), 0)
+        confusion[top["effect"]][str(ptop)] += 1
+        if okm:
+            pe_pred = next(e for e in pred["effects"] if e["effect"] == ptop)
+            ps = pe_pred.get("shrink_by_stage", {}).get(top["stage"])
+            if ps is not None and top["shrink_true"] > 0:
+                shrink_err.append(abs(ps - top["shrink_true"]) / top["shrink_true"])
+        tipc.append(top["tip_consequence"])
+    res = {"n_cases": len(records), "n_effect_free": n_null, "n_library_present": n_lib, "n_open_present": n_open,
+           "family_top1": n_fam / n_lib if n_lib else float("nan"),
+           "member_top1": n_mem / n_lib if n_lib else float("nan"),
+           "false_alarm_rate": fa / n_null if n_null else float("nan"),
+           "median_shrink_error": float(np.median(shrink_err)) if shrink_err else float("nan"),
+           "n_shrink": len(shrink_err),
+           "open_set_flagged": n_open_flag / n_open if n_open else float("nan"),
+           "floors": floors, "per_family": per_family, "per_effect": per_effect, "confusion": confusion,
+           "tip_consequence_median_abs": float(np.median(np.abs(tipc))) if tipc else float("nan")}
+    return res
+
+
+def write_scores(sc: dict, out: Path, command: str) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scores.json").write_text(json.dumps(sc, indent=1, default=float))
+    L = ["# Stage-wise gap diagnostic: blind check across device families", "", f"Command: `{command}`", "",
+         f"{sc['n_cases']} cases; {sc['n_effect_free']} effect-free, {sc['n_library_present']} with a present "
+         f"library effect, {sc['n_open_present']} open-set with a present effect. Noise floors (relative held-out "
+         "RMS change per stage): " + ", ".join(f"{k} {v:.4f}" for k, v in sc["floors"].items()), "",
+         "| score | measured | target | |", "|---|---|---|---|"]
+    for k, (op, tgt) in TARGETS.items():
+        v = sc[k]
+        ok = (v >= tgt) if op == ">=" else (v <= tgt)
+        miss = "" if ok else f" by {abs(v - tgt):.3f}"
+        L.append(f"| {k} | {v:.3f} | {op} {tgt} | {'met' if ok else 'missed' + miss} |")
+    L += ["", "Per family (cases with a present library effect; effect-free cases):", "",
+          "| family | library cases | family top-1 | member top-1 | effect-free | false alarms |", "|---|---|---|---|---|---|"]
+    for f, p in sc["per_family"].items():
+        L.append(f"| {f} | {p['lib']} | {p['fam_ok'] / max(p['lib'], 1):.2f} | {p['mem_ok'] / max(p['lib'], 1):.2f} | "
+                 f"{p['null']} | {p['fa'] / max(p['null'], 1):.2f} |")
+    L += ["", "Per present effect (top effect of the case):", "", "| effect | cases | member top-1 | family top-1 | most often predicted |",
+          "|---|---|---|---|---|"]
+    for e, p in sorted(sc["per_effect"].items()):
+        conf = sc["confusion"].get(e, {})
+        mp = max(conf, key=conf.get) if conf else "-"
+        L.append(f"| {e} | {p['n']} | {p['member_ok'] / p['n']:.2f} | {p['family_ok'] / p['n']:.2f} | {mp} |")
+    L += ["", f"Median |tip consequence| of the top present effect: {sc['tip_consequence_median_abs']:.3f} % of "
+          "range (fast stand-in estimator): an effect can be plain in its stage and cost the tip little."]
+    (out / "scores.md").write_text("\n".join(L) + "\n")
+
+
+def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thresholds: dict | None = None) -> dict:
+    thr = load_stage_thresholds() if thresholds is None else thresholds
+    t0 = time.perf_counter()
+    recs = _map(_case_job, [(i, seed, thr) for i in range(n)], jobs)
+    sc = score(recs)
+    sc["seconds"] = time.perf_counter() - t0
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    with gzip.open(out / "cases.jsonl.gz", "wt") as fh:
+        for r in recs:
+            fh.write(json.dumps(r, default=float, sort_keys=True) + "\n")
+    write_scores(sc, out, command or f"selfsense gap blind --n {n} --seed {seed} --jobs {jobs} --out {out}")
+    return sc
+
+
+def _case_job(i, seed, thr):
+    return run_case(i, seed, thr)
