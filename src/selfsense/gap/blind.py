@@ -38,6 +38,9 @@ TARGETS = {"family_top1": (">=", 0.95), "member_top1": (">=", 0.85), "false_alar
 THRESHOLDS_FILE = Path(__file__).with_name("stage_thresholds.json")
 #: smallest gain scale per stage: the relay-short segments (holds) are long, noise-only records with a tight null
 FLOOR_BY_STAGE = {"holds": 0.005}
+#: smallest scale of a level test (a statistic with a null level of its own, not a gain): a null shift of that
+#: size on another rig (relay contact noise, a different in-amp) must not raise alarms
+FLOOR_LEVEL = 0.1
 
 
 def draw_case(i: int, seed: int, open_set_rate: float = 0.1) -> dict:
@@ -143,7 +146,8 @@ def calibrate(n: int, seed: int, jobs: int = 1, q: float = 0.95, floor: float = 
     rows = _map(null_gains, [(i, seed) for i in range(n)], jobs)
     members = list(MEMBERS)
     G = np.array([[r.get(m, np.nan) for m in members] for r in rows], float)
-    fl = [FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor) for m in members]
+    fl = [FLOOR_LEVEL if MEMBERS[m].gain is not None else FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor)
+          for m in members]
     s = np.array([max(float(np.nanquantile(G[:, j], q)), fl[j]) for j in range(len(members))])
     T = float(np.nanquantile(np.nanmax(G / s, axis=1), q))
     thr = {m: float(T * s[j]) for j, m in enumerate(members)}

@@ -89,8 +89,15 @@ def stage_signals(trials: dict, meta: pd.DataFrame, rig) -> list[StageSignals]:
             dx=df["dx_ref"].to_numpy(float)[a:] if "dx_ref" in df else np.full(len(t), np.nan),
             f=df["f_ref"].to_numpy(float)[a:] if "f_ref" in df else np.full(len(t), np.nan),
             dt=dt, tip=str(m.get("tip", "")), reference=str(m.get("reference", "")), role=str(m.get("role", "")),
-            order=k, extra={"relay_vs": df["V_s"].to_numpy(float)[on[0]:on[-1] + 1] if len(on) else np.zeros(0)}))
+            order=k, extra={"relay_vs": df["V_s"].to_numpy(float)[on[0]:on[-1] + 1] if len(on) else np.zeros(0),
+                            "post_noise": _mad(np.diff(df["V_s"].to_numpy(float)[a:]))}))
     return out
+
+
+def _mad(x: np.ndarray) -> float:
+    """Robust standard deviation (1.4826 x median absolute deviation)."""
+    x = np.asarray(x, float)
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else float("nan")
 
 
 def lp(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
@@ -140,6 +147,9 @@ class Member:
     unit: str = ""
     physics: str = ""
     gain: Callable | None = None
+    #: physical sign of the member's first coefficient relative to the stage's reference coefficient (the charge
+    #: -> displacement gain a of the mechanical stage): a fit with the other sign is not this member
+    sign: int | None = None
 
 
 def _c_leak(s, ctx, g):
@@ -203,10 +213,12 @@ def _c_none(s, ctx, g):
 
 
 def _g_excess(sm, base) -> float:
-    """Excess of the shunt signal during the relay short over the ADC quantisation floor: RMS (beyond the per-trial
-    offset and the members already in) / (LSB / sqrt 12) - 1. A remanent operator state relaxing through the short
-    drives a current there; an effect-free short leaves noise at the level of a few LSB."""
-    return sm.r(base) / sm.extra["sigma_q"] - 1.0
+    """Fast fluctuation of the shunt signal while the relay shorts the actuators, against the same channel's noise
+    after the release: median over trials of std(diff V_s, short) / (1.4826 MAD(diff V_s, after release)) - 1.
+    A remanent operator state relaxing through the short drives an irregular current there; an effect-free short
+    leaves the in-amp's noise, and a drifting offset (ramp, random walk) hardly changes sample-to-sample
+    differences. Normalised by the channel's own noise, so it does not depend on the rig's in-amp or ADC."""
+    return sm.extra["relay_excess"]
 
 
 def _c_ramp(s, ctx, g):
@@ -234,13 +246,15 @@ MODE_GRID = (8.0, 12.0, 18.0, 27.0, 40.0, 60.0, 90.0, 135.0)
 MEMBERS: dict[str, Member] = {m.name: m for m in [
     # mechanical stage: laser against charge on free-tip trials
     Member("slow.leakage", "slow", "mechanical", _c_leak, physics="charge lost through a parallel conductance: "
-           "the laser follows Q + g int V dt"),
+           "the laser follows Q + g int V dt, g > 0", sign=1),
     Member("slow.offset_drift", "slow", "mechanical", _c_offset, physics="in-amp offset integrated into Q: "
            "Q error = c1 t + c2 t^2"),
     Member("slow.absorption", "slow", "mechanical", _c_absorption, TAU_GRID, "s",
-           "charge parked in a dielectric-absorption branch: Q error = c (LP_tau V - V)"),
+           "charge parked in a dielectric-absorption branch: the laser follows Q - C_da LP_tau V (after a step the "
+           "charge keeps rising while the tip does not)", sign=-1),
     Member("slow.creep", "slow", "mechanical", _c_creep, TAU_GRID, "s",
-           "charge-free creep strain: x = a Q + c (LP_tau Q - Q)"),
+           "charge-free creep strain: x = a Q + c (LP_tau Q - Q) (after a step the tip keeps moving while the "
+           "charge does not)", sign=1),
     Member("slow.temperature", "slow", "mechanical", _c_temperature,
            physics="actuator constant drifting over the campaign: x = a Q (1 + c k_trial)"),
     Member("rate.mechanism_mode", "rate", "mechanical", _c_mode, MODE_GRID, "Hz",
@@ -253,8 +267,8 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
            "amplifier slew / current limit: V = rate_limit(G u_cmd) - V_s"),
     # holds stage: the shunt signal while the relay shorts the actuators (a 0 V hold before every trial)
     Member("hysteresis.preload@holds", "hysteresis", "holds", _c_none, gain=_g_excess,
-           physics="remanent operator state relaxing through the relay short: shunt current at 0 V beyond the ADC "
-                   "floor (level test: RMS / (LSB / sqrt 12) - 1)"),
+           physics="remanent operator state relaxing through the relay short: an irregular shunt current at 0 V "
+                   "(level test: sample-to-sample fluctuation during the short / after the release - 1)"),
     Member("slow.offset_drift@holds", "slow", "holds", _c_ramp,
            physics="in-amp offset drifting during the relay short: a ramp of the shunt signal at 0 V"),
     Member("hysteresis.preload", "hysteresis", "electrical", _c_preload, (0.1, 0.25, 0.45, 0.7), "x Q range",
@@ -455,8 +469,9 @@ def build_stage(stage: str, sigs: list[StageSignals], ctx: dict | None = None,
     cv = GramCV(Z[good], yv[good], bl[good])
     extra = {}
     if stage == "holds":
-        lsb = [np.min(np.diff(u)) for u in (np.unique(s.extra["relay_vs"]) for s in rows) if len(u) > 1]
-        extra["sigma_q"] = float(np.median(lsb)) / np.sqrt(12.0) if lsb else float("nan")
+        r = [float(np.std(np.diff(s.extra["relay_vs"]))) / s.extra["post_noise"] - 1.0 for s in rows
+             if s.extra.get("post_noise", 0) > 0]
+        extra["relay_excess"] = float(np.median(r)) if r else float("nan")
     return StageModel(stage, cv, list(range(p0)), member_cols, generic, int(good.sum()), [s.name for s in rows],
                       float(np.sqrt(np.mean(yv[good] ** 2))), extra=extra, insample=stage == "holds")
 
@@ -466,6 +481,13 @@ def _best(sm: StageModel, base: list, member: str) -> tuple[float, int]:
         return float(MEMBERS[member].gain(sm, base)), 0
     r0 = sm.r(base)
     gains = [1.0 - sm.r(base + c) / r0 for c in sm.member_cols[member]]
+    sg = MEMBERS[member].sign
+    if sg is not None:  # a fit of the wrong physical sign is not this member
+        for j, c in enumerate(sm.member_cols[member]):
+            cols = sorted(set(base + c))
+            w = dict(zip(cols, sm.cv.fit(cols)))
+            if np.sign(w[c[0]] * w[sm.nominal[0]]) != sg:
+                gains[j] = min(gains[j], 0.0)
     k = int(np.argmax(gains))
     return float(gains[k]), k
 
