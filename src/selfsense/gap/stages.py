@@ -245,8 +245,8 @@ MODE_GRID = (8.0, 12.0, 18.0, 27.0, 40.0, 60.0, 90.0, 135.0)
 
 MEMBERS: dict[str, Member] = {m.name: m for m in [
     # mechanical stage: laser against charge on free-tip trials
-    Member("slow.leakage", "slow", "mechanical", _c_leak, physics="charge lost through a parallel conductance: "
-           "the laser follows Q + g int V dt, g > 0", sign=1),
+    Member("slow.leakage", "slow", "mechanical", _c_leak, physics="a parallel conductance g: the shunt also "
+           "carries g V, so the laser follows Q - g int V dt, g > 0", sign=-1),
     Member("slow.offset_drift", "slow", "mechanical", _c_offset, physics="in-amp offset integrated into Q: "
            "Q error = c1 t + c2 t^2"),
     Member("slow.absorption", "slow", "mechanical", _c_absorption, TAU_GRID, "s",
@@ -260,7 +260,7 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     Member("rate.mechanism_mode", "rate", "mechanical", _c_mode, MODE_GRID, "Hz",
            "tip mode: x = a R_f[Q], R_f a second-order low-pass at f (zeta 0.05)"),
     # electrical stage: V against Q on free-tip trials
-    Member("slow.leakage@el", "slow", "electrical", _c_leak, physics="Q = G[V] - g int V dt"),
+    Member("slow.leakage@el", "slow", "electrical", _c_leak, physics="Q = G[V] + g int V dt (the shunt also carries g V)"),
     Member("slow.offset_drift@el", "slow", "electrical", _c_offset, physics="Q = G[V] + c1 t + c2 t^2"),
     Member("slow.temperature@el", "slow", "electrical", _c_temperature, physics="C_p drifting over the campaign"),
     Member("rate.amplifier", "rate", "electrical", _c_amplifier, (0.6, 0.8, 1.0, 1.25), "x slew of the data",
@@ -556,14 +556,15 @@ def _head_to_head(stages: dict) -> None:
     offset-like charge drift in the mechanical / electrical stage is then the remanent operator state's (preload),
     not the in-amp's."""
     acc = {a["member"] for a in stages.get("holds", {}).get("accepted", [])}
-    if "hysteresis.preload@holds" not in acc or "slow.offset_drift@holds" in acc:
+    if "hysteresis.preload@holds" not in acc:
         return
-    for st in ("mechanical", "electrical"):
+    for st in ("holds", "mechanical", "electrical"):
         for a in stages.get(st, {}).get("accepted", []):
             if a["effect"] == "slow.offset_drift":
                 a.update(effect="hysteresis.preload", family="hysteresis",
-                         note="offset-like charge drift explained by the relaxation current seen during the relay "
-                              "short (holds stage), which biases the relay-segment offset estimate")
+                         note="offset-like drift explained by the irregular relaxation current seen during the relay "
+                              "short (holds stage): it also trends there and biases the relay-segment offset "
+                              "estimate that the charge integration subtracts")
 
 
 def _cross_stage(stages: dict) -> None:
