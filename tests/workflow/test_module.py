@@ -65,5 +65,5 @@ def test_module_includes_the_gap_diagnostic(outer_run):
     res, out = outer_run
     assert "selfsense_gap_diagnose" in out
     verdict = json.loads((res / "gap" / "verdict.json").read_text())
-    assert {"effects", "families", "unexplained", "message"} <= set(verdict)
+    assert {"effects", "families", "unexplained", "message", "stages", "tip"} <= set(verdict)
     assert "gap diagnostic" in (res / "report.html").read_text()

@@ -11,11 +11,13 @@
 
 rule gap_diagnose:
     input:
-        raw_inputs,
-        # after validation: a dataset that fails the contract or the plausibility checks stops there, not here
-        res("{dataset}", "validation.json"),
+        # the pipeline's own signals and fitted model (not the raw data again): the diagnostic diagnoses the
+        # configured estimator, and its "before" is Table 3
+        signals=per_trial("signals", all_trials),
+        model=res("{dataset}", "model", "sensing.json"),
+        table3=res("{dataset}", "tables", "table3.csv"),
     output:
-        # attribution.csv, budget.csv, shrink.csv|md, verdict.json and the diagnostic's figures
+        # verdict.json, stages.csv, effects.csv, candidates.csv, shrink.csv|md and stage_gains.png
         gap=report(
             directory(res("{dataset}", "gap")),
             patterns=["{name}.png", "{name}.csv"],
@@ -31,13 +33,11 @@ rule gap_diagnose:
         "../envs/selfsense.yaml"
     threads: 1
     resources:
-        mem_mb=1400,  # peak 1142 MB at the sample budget: block means (benchmarks/MEMORY.md)
+        mem_mb=2000,
         runtime=30,
     params:
         dataset_dir=dataset_dir,
-        # the estimator the pipeline uses: the RI + creep model when calibration.h_model is ri (the gap section
-        # must diagnose the model of Table 3), else the modified PI; gap.estimator overrides
-        estimator=GAP_ESTIMATOR,
+        config=SENSING_CONFIG,
         seed=config.get("gap", {}).get("seed", 0),
     script:
         "../scripts/gap_diagnose.py"

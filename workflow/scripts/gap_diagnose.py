@@ -1,9 +1,10 @@
-"""Thin wrapper: selfsense.gap.run_diagnose(dataset_dir, out_dir) (all science in src/selfsense/gap); the gap
-package's phase lines (logging, INFO) go to the rule's log."""
+"""Thin wrapper: selfsense.gap.pipeline.run_pipeline_diagnosis (all science in src/selfsense/gap): the stage-wise
+diagnostic on the pipeline's signals and fitted model; its phase lines go to the rule's log."""
 from selfsense import stages
-from selfsense.gap.api import run_diagnose
+from selfsense.gap.pipeline import run_pipeline_diagnosis
 
 with stages.logged(snakemake.log[0]):  # noqa: F821
-    run_diagnose(snakemake.params.dataset_dir, snakemake.output.gap,  # noqa: F821
-                 estimator=snakemake.params.estimator, seed=int(snakemake.params.seed),  # noqa: F821
-                 force=True)  # the pipeline owns results/<d>/gap; written all-or-nothing
+    signals = stages.by_trial(snakemake.input.signals)  # noqa: F821
+    run_pipeline_diagnosis(snakemake.params.dataset_dir, signals, snakemake.input.model,  # noqa: F821
+                           snakemake.params.config, snakemake.output.gap,  # noqa: F821
+                           table3_csv=snakemake.input.table3, seed=int(snakemake.params.seed))  # noqa: F821

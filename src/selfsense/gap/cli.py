@@ -99,8 +99,22 @@ def _blind(a) -> int:
     out = Path(a.out)
     cmd = f"selfsense gap blind --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
     thr = load_stage_thresholds(a.thresholds) if a.thresholds else None
+    if a.tip:
+        from .blind import run_tip_tier
+
+        cmd = f"selfsense gap blind --tip --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
+        with output_lock(out):
+            if not (out / MARKER).exists():
+                check_output_dir(out, force=a.force)
+            out.mkdir(parents=True, exist_ok=True)
+            (out / MARKER).write_text("written by selfsense gap blind\n")
+            sc = run_tip_tier(a.n, a.seed, a.jobs, out, cmd)
+        print(f"{a.n} tip cases in {sc['seconds']:.0f} s; median tip shrink error "
+              f"{sc['median_tip_shrink_error']:.3f} over {sc['n_scored']} -> {out}/tip_scores.md")
+        return 0
     with output_lock(out):
-        check_output_dir(out, force=a.force)
+        if not (out / MARKER).exists():
+            check_output_dir(out, force=a.force)
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("written by selfsense gap blind\n")
         sc = run_campaign(a.n, a.seed, a.jobs, out, cmd, thresholds=thr)
@@ -187,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     bl.add_argument("--jobs", type=int, default=1, help="worker processes (results do not depend on it)")
     bl.add_argument("--thresholds", default=None, help="stage thresholds JSON (default: the packaged ones)")
     bl.add_argument("--force", action="store_true", help="replace --out even if selfsense did not create it")
+    bl.add_argument("--tip", action="store_true", help="the tip tier instead: single-effect cases, the default "
+                    "estimator, predicted against re-simulated tip shrink (slow: several estimator fits per case)")
     bl.set_defaults(fn=_blind)
     bc = sub.add_parser("blind-calibrate", help="null thresholds of the stage-wise diagnostic",
                         description="null thresholds of the stage-wise diagnostic from effect-free cases over the "

@@ -54,7 +54,7 @@ def why_not(verdict: dict) -> list[dict]:
 
 
 def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitted=None, thresholds=None,
-                     seed: int = 0, n_boot: int = 200) -> dict:
+                     seed: int = 0, n_boot: int = 200, refit_outputs: bool = True) -> dict:
     """Stage verdict + tip counterfactual of one dataset in memory (JSON-able dict)."""
     from .blind import load_stage_thresholds
     from .counterfactual import counterfactual
@@ -64,7 +64,8 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
     from .stages import diagnose_stages
 
     v = diagnose_stages(trials, meta, rig, thr)
-    cf = counterfactual(trials, meta, rig, v, make_estimator, n_boot=n_boot, seed=seed, fitted=fitted)
+    cf = counterfactual(trials, meta, rig, v, make_estimator, n_boot=n_boot, seed=seed, fitted=fitted,
+                        refit_outputs=refit_outputs)
     v = {k: x for k, x in v.items() if not k.startswith("_")}
     v["thresholds"] = thr
     v["tip"] = cf
@@ -75,6 +76,7 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
         v["protocol_proposal"] = proposal(ex)
     except Exception as exc:  # noqa: BLE001 - the check is advice; say why it is missing
         v["excitation"] = {"error": f"{type(exc).__name__}: {exc}"}
+    v["families"] = sorted({e["family"] for e in v["effects"]})
     v["message"] = message(v)
     return v
 
@@ -205,7 +207,10 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
     def make(rig_):
         return SelfSensingEstimator(config=cfg, rig=rig_)
 
-    v = diagnose_dataset(trials, meta, rig, make, fitted=fitted, seed=seed)
+    v = diagnose_dataset(trials, meta, rig, make, fitted=fitted, seed=seed, refit_outputs=False)
+    v["counterfactual_note"] = ("charge and voltage corrections: the configured estimator recalibrated on the "
+                                "corrected calibration trials; output corrections (charge-free motion, load stage): "
+                                "the pipeline's fitted model with the correction added to its estimate")
     v["estimator"] = {"config": {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()},
                       "model": str(model_json)}
     if table3_csv is not None and Path(table3_csv).exists():
