@@ -14,7 +14,7 @@ SAMPLE = ROOT / "data" / "raw" / "sample"
 @pytest.mark.skipif(not SAMPLE.is_dir(), reason="bundled sample dataset missing")
 def test_diagnose_cli_writes_contract_files(tmp_path):
     out = tmp_path / "gap"
-    assert main(["diagnose", str(SAMPLE), "--out", str(out), "--n-boot", "4"]) == 0
+    assert main(["diagnose", str(SAMPLE), "--out", str(out), "--method", "library", "--n-boot", "4"]) == 0
     att = pd.read_csv(out / "attribution.csv")
     assert list(att.columns) == ["effect", "family", "selected", "selection_frequency", "cv_gain", "error_before",
                                  "error_after", "shapley_share", "measurement"]
@@ -41,6 +41,30 @@ def test_diagnose_cli_writes_contract_files(tmp_path):
     assert (out / "shrink.md").read_text().startswith("# Held-out error")
     for png in ("budget_regimes.png", "shrink.png", "residual_vs_voltage.png"):
         assert (out / png).stat().st_size > 1000
+
+
+@pytest.mark.skipif(not SAMPLE.is_dir(), reason="bundled sample dataset missing")
+def test_stage_diagnose_cli_on_the_sample(tmp_path):
+    """The default (stage-wise) diagnosis: every stage reported, the configured estimator's before equals its own
+    Table 3 scoring, every candidate has a reason, the excitation check and the figure are there."""
+    from selfsense.gap.counterfactual import _summary, tip_table
+    from selfsense.gap.data import load_case
+    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+
+    out = tmp_path / "gap"
+    assert main(["diagnose", str(SAMPLE), "--out", str(out), "--no-figures"]) == 0
+    v = json.loads((out / "verdict.json").read_text())
+    assert set(v["stages"]) == {"holds", "electrical", "mechanical", "load"}
+    assert v["stages"]["mechanical"]["observed"]
+    case = load_case(SAMPLE, with_truth=False)
+    ref = _summary(tip_table(case.trials, case.meta, case.rig,
+                             lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)))
+    for m in ("displacement", "force"):
+        assert v["tip"]["before"][m] == pytest.approx(ref[m], rel=1e-9)
+    cands = pd.read_csv(out / "candidates.csv")
+    assert cands["why"].str.len().min() > 10 and set(cands["stage"]) <= set(v["stages"])
+    assert {"stages.csv", "effects.csv", "shrink.csv", "shrink.md"} <= {p.name for p in out.iterdir()}
+    assert "rest_then_repeat" in v["excitation"]["missing"]
 
 
 def test_cli_rejects_missing_dataset(tmp_path):

@@ -1,6 +1,7 @@
 """``selfsense gap ...``: the sim-to-real gap diagnostic and its blind benchmark.
 
-  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--estimator sensing|sensing_ri|fast] [--seed S] [--n-boot B]
+  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--configfile config.yaml] [--seed S]    (stage-wise)
+  selfsense gap diagnose DATASET_DIR --out OUT_DIR --method library [--estimator ...] [--n-boot B]  (earlier design)
   selfsense gap blind --n N --seed S --out DIR [--jobs J]        (stage-wise diagnostic, blind, device families)
   selfsense gap blind-calibrate --n N --seed S --out FILE.json [--jobs J]     (its null thresholds)
   selfsense gap benchmark --n N --seed S --out DIR [--tier fast|full] [--sim device|toy]
@@ -22,6 +23,15 @@ __all__ = ["main"]
 
 
 def _diagnose(a) -> int:
+    if a.method == "stages":
+        import yaml
+
+        from .pipeline import run_stage_diagnose
+
+        cfg = yaml.safe_load(Path(a.configfile).read_text()) if a.configfile else {}
+        v = run_stage_diagnose(a.dataset_dir, a.out, cfg, seed=a.seed, figures=not a.no_figures, force=a.force)
+        print(f"gap diagnose {a.dataset_dir}: {v['message']} Wrote {a.out}")
+        return 0
     from .api import run_diagnose
 
     d = run_diagnose(a.dataset_dir, a.out, estimator=a.estimator, seed=a.seed, n_boot=a.n_boot,
@@ -149,8 +159,14 @@ def main(argv: list[str] | None = None) -> int:
     d = sub.add_parser("diagnose", help="diagnose one dataset (any dataset; truth folder optional)", description="diagnose one dataset (any dataset; truth folder optional)", allow_abbrev=False)
     d.add_argument("dataset_dir", help="raw dataset folder (rig.yaml, trials.csv, logs); a truth folder beside it is optional")
     d.add_argument("--out", required=True, help="output folder (attribution.csv, budget.csv, verdict.json, figures)")
+    d.add_argument("--method", choices=["stages", "library"], default="stages",
+                   help="stages: stage-wise diagnostic in the measured signals (default); library: the earlier "
+                        "tip-level library diagnostic (docs/gap.md, 'Earlier design')")
+    d.add_argument("--configfile", default=None, help="config.yaml whose calibration / estimation sections set the "
+                   "estimator that is diagnosed (default: the pipeline's defaults); --method stages")
     d.add_argument("--estimator", choices=["fast", "sensing", "sensing_ri"], default="sensing",
-                   help="sensing: the project's SelfSensingEstimator (default); fast: the NNLS stand-in")
+                   help="--method library only: sensing: the project's SelfSensingEstimator (default); fast: the "
+                        "NNLS stand-in")
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
     d.add_argument("--n-boot", type=int, default=30, help="bootstrap resamples per candidate effect (default 30)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")

@@ -221,3 +221,32 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
     with output_dir(out_dir, [dataset_dir], force=force) as tmp:
         write(v, Path(tmp), figures=figures)
     return v
+
+
+def run_stage_diagnose(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str, Any] | None = None,
+                       seed: int = 0, figures: bool = True, force: bool = False) -> dict:
+    """``selfsense gap diagnose``: the same diagnosis on a raw dataset outside the pipeline. The dataset is
+    validated and prepared as the pipeline's ingest does (thesis eqs. 56-57), the configured estimator (``config``:
+    the ``calibration`` / ``estimation`` sections, default: the pipeline's defaults) is calibrated on its
+    calibration trials, then diagnosed; ``out_dir`` is written all-or-nothing."""
+    from selfsense.io import check_output_dir, output_dir
+    from selfsense.sensing.estimator import SelfSensingEstimator
+    from selfsense.stages import sensing_config
+
+    from .data import load_case
+
+    check_output_dir(out_dir, [dataset_dir], force=force)
+    case = load_case(dataset_dir, with_truth=False)
+    cfg = sensing_config(config or {})
+
+    def make(rig_):
+        return SelfSensingEstimator(config=cfg, rig=rig_)
+
+    fitted = make(case.rig).fit(case.trials, case.meta)
+    v = diagnose_dataset(case.trials, case.meta, case.rig, make, fitted=fitted, seed=seed, refit_outputs=False)
+    v["estimator"] = {"config": {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()}}
+    if case.decimated:
+        v["decimated"] = {t: int(k) for t, k in sorted(case.decimated.items())}
+    with output_dir(out_dir, [dataset_dir], force=force) as tmp:
+        write(v, Path(tmp), figures=figures)
+    return v
