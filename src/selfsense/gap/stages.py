@@ -173,7 +173,10 @@ def _c_temperature(s, ctx, g):
 
 
 def _c_mode(s, ctx, g):
-    return (resonator(s.Q, g, 0.05, s.dt) - s.Q)[:, None]
+    """In-phase and quadrature response of a second-order mode at ``g`` Hz (zeta 0.05) to the charge: the tip
+    mode's own lag and its back-coupling into the charge shift the phase, so both components are free."""
+    r = resonator(s.Q, g, 0.05, s.dt)
+    return np.column_stack([r - s.Q, np.gradient(r, s.dt) / (2 * np.pi * g)])
 
 
 def _c_amplifier(s, ctx, g):
@@ -258,7 +261,8 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     Member("slow.temperature", "slow", "mechanical", _c_temperature,
            physics="actuator constant drifting over the campaign: x = a Q (1 + c k_trial)"),
     Member("rate.mechanism_mode", "rate", "mechanical", _c_mode, MODE_GRID, "Hz",
-           "tip mode: x = a R_f[Q], R_f a second-order low-pass at f (zeta 0.05)"),
+           "tip mode: x = a Q + c1 (R_f[Q] - Q) + c2 d/dt R_f[Q] / (2 pi f), R_f a second-order low-pass at f "
+           "(zeta 0.05); in-phase and quadrature because the mode also couples back into the charge"),
     # electrical stage: V against Q on free-tip trials
     Member("slow.leakage@el", "slow", "electrical", _c_leak, physics="Q = G[V] + g int V dt (the shunt also carries g V)"),
     Member("slow.offset_drift@el", "slow", "electrical", _c_offset, physics="Q = G[V] + c1 t + c2 t^2"),
