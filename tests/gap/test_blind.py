@@ -71,3 +71,14 @@ def test_fast_tier_meets_floors_from_the_campaign():
     assert sc["family_top1"] >= 0.7
     assert sc["false_alarm_rate"] <= 0.25
     assert sc["median_shrink_error"] <= 0.5
+
+
+def test_committed_tip_tier_recomputes():
+    """The tip tier (default estimator, predicted against re-simulated tip shrink) recomputes from its records."""
+    with gzip.open(CAMPAIGN / "tip_cases.jsonl.gz", "rt") as fh:
+        recs = [json.loads(line) for line in fh]
+    sc = blind.score_tip(recs)
+    ref = json.loads((CAMPAIGN / "tip_scores.json").read_text())
+    for k in ("median_tip_shrink_error", "interval_coverage", "tip_noise_floor"):
+        assert sc[k] == pytest.approx(ref[k], rel=1e-9, nan_ok=True), k
+    assert sc["n"] == ref["n"] >= 40
