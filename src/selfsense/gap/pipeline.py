@@ -95,6 +95,9 @@ def message(v: dict) -> str:
             parts.append(f"Corrected with its stage-fitted coefficients fixed, the tip error changes by "
                          f"{te['shrink']:+.2f} points of range (90 % interval {lo:+.2f} to {hi:+.2f}; positive = "
                          "smaller error).")
+            if abs(te["shrink"]) < 0.1:
+                parts.append("The effect is plain in its stage but costs the configured estimator's tip error less "
+                             "than 0.1 points of range (the estimator already absorbs or compensates it).")
         if len(v["effects"]) > 1:
             parts.append("Also confirmed: " + ", ".join(f"{x['effect']} ({x['stage']})" for x in v["effects"][1:])
                          + ".")

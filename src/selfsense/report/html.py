@@ -273,7 +273,9 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
                  "mechanical": "mechanical (laser against the measured charge, free-tip trials)",
                  "load": "load (load cell against the nominal force estimate, force trials)"}
         rows = []
-        for st, d in vd["stages"].items():
+        order = [k for k in ("holds", "electrical", "mechanical", "load") if k in vd["stages"]]
+        for st in order + [k for k in vd["stages"] if k not in order]:
+            d = vd["stages"][st]
             if not d.get("observed"):
                 rows.append(f"<tr><td>{html.escape(names.get(st, st))}</td><td colspan='4'>not observed in this "
                             "dataset</td></tr>")
