@@ -4,10 +4,11 @@ correction predicted the counterfactual tip-error change to ~0.02 points).
 
 A correction acts where the stage says the effect acts:
 
-* mechanical stage (leakage, offset drift, dielectric absorption, temperature, creep, a tip mode): the laser
-  follows ``a Q/q_span + c col``, so the actuator moves as if its charge were ``Q + q_span c col / a``: the
-  estimator's charge is corrected so (for creep and a mode this also moves V_p = V - H(Q), which the
-  recalibrated H absorbs);
+* mechanical-stage charge path (leakage, offset drift, dielectric absorption, temperature): the laser follows
+  ``a Q/q_span + c col``, so the actuator's charge is ``Q + q_span c col / a``;
+* charge-free motion (creep, a tip mode): ``dx^ <- dx^ + c col``, taken out of the calibration references too
+  (moving them into the charge instead also moves V_p = V - H(Q) and made the tip error worse by 5-11 points in
+  the tip tier);
 * charge path (electrical stage): ``Q = G[V] + c col`` -> ``Q - c col``;
 * amplifier: ``V <- V + (rate_limit(V_c) - V_c)`` (the actuator saw the limited amplifier output);
 * operator state / virgin curve (electrical stage): ``V <- V + v_span c col / b`` (the voltage at which the
@@ -32,7 +33,7 @@ __all__ = ["CORRECTION_KIND", "corrections", "tip_table", "counterfactual"]
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
-    "slow.temperature": "charge_mech", "slow.creep": "charge_mech", "rate.mechanism_mode": "charge_mech",
+    "slow.temperature": "charge_mech", "slow.creep": "dx_out", "rate.mechanism_mode": "dx_out",
     "slow.leakage@el": "charge_el", "slow.offset_drift@el": "charge_el", "slow.temperature@el": "charge_el",
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
     "load.stress_hysteresis": "f_out", "load.contact": "f_out",
