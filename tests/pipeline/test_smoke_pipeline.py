@@ -145,7 +145,7 @@ def test_snakemake_report_holds_every_table_and_figure_with_its_caption(two_runs
     assert len(figures) >= 4 and figures <= names, figures - names
     assert {"table3.csv", "per_trial.csv", "modes.csv", "report.html"} <= names
     if (res / "gap").is_dir():
-        assert {p.name for p in (res / "gap").glob("*.png")} | {"attribution.csv", "budget.csv"} <= names
+        assert {p.name for p in (res / "gap").glob("*.png")} | {"stages.csv", "effects.csv", "candidates.csv"} <= names
     page = zipfile.ZipFile(out).read("report/report.html").decode()
     for phrase in ("Thesis Table 3 / paper Table II", "regenerates thesis Fig. 17", "regenerates thesis Fig. 21"):
         assert phrase in page, phrase
