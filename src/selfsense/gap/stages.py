@@ -3,16 +3,22 @@
 The estimate flows u_cmd -> V (amplifier) -> Q (electrical) -> x (mechanical) -> tip / load. Each stage has a
 residual that needs no truth, measured on the trials where the stage is observed:
 
-* **electrical** (free-tip trials): the actuator voltage V against the measured charge Q. Nominal model: a signed
-  Prandtl-Ishlinskii operator of Q with a relaxation bank (thesis ``000_18d138f03f1777c3.txt`` eqs. 27-33: V =
-  V_p + H(q), and on a free tip V_p is proportional to q), so what is left is what H(q) cannot be.
+* **holds**: the shunt signal while the relay shorts the actuators before every trial (a 0 V hold): nominal, one
+  offset per trial; a ramp there is an in-amp drift, an irregular current a remanent state relaxing.
+* **electrical** (free-tip trials): the measured charge Q as the response to the actuator voltage V. Nominal model:
+  a signed Prandtl-Ishlinskii operator of V with a relaxation bank (thesis ``000_18d138f03f1777c3.txt`` eqs. 27-33:
+  V = V_p + H(q), and on a free tip V_p is proportional to q, so Q is a hysteretic, creeping function of V); what is
+  left is what that relation cannot be (charge added or lost outside the actuator, a voltage that is not the
+  amplifier's command).
 * **amplifier**: with V reconstructed as V_c - V_s (eq. 56) an amplifier that cannot follow its command shows in
-  the electrical residual on the fast segments; its members (rate limit, crossover dead band) are tested there.
+  the electrical residual; its member (a slew / current limit) is tested there, and a crossover dead band (not a
+  member) is left to the electrical stage's open-set test.
 * **mechanical** (free-tip trials): the laser against Q. On a free tip the displacement is proportional to the
   stored charge (eqs. 27 and 52 with f = 0), so the nominal model is a line in Q (plus a small quadratic term for
   the mechanism's kinematics) and the stage is almost null-free.
 * **load** (force-reference trials): the load cell against the nominal estimate f^ (the fast stand-in of the
-  sensing estimator, :class:`selfsense.gap.model.FastSensingEstimator`, calibrated on the calibration trials).
+  sensing estimator, :class:`selfsense.gap.model.FastSensingEstimator`, calibrated on the calibration trials), with
+  Q and V free (eq. 46: the two-port cross terms are part of the nominal).
 
 Each stage has a library of members (a few physically shaped columns, some on a grid of a physical parameter:
 a time constant, a mode frequency, a rate limit); competing members sit in one stage model and enter by forward
@@ -284,8 +290,8 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     Member("load.contact", "load", "load", _c_contact, physics="Hertz-like contact: f^1.5, f^0.5 (compressive)"),
 ]}
 
-#: a member name -> the effect it names (electrical duplicates name the same physical effect)
 def effect_of(member: str) -> str:
+    """The effect a member names: ``slow.leakage@el`` and ``slow.leakage`` name the same physical effect."""
     return member.split("@")[0]
 
 
