@@ -280,6 +280,13 @@ def write_scores(sc: dict, out: Path, command: str) -> None:
     (out / "scores.md").write_text("\n".join(L) + "\n")
 
 
+def _write_records(path: Path, recs: list[dict]) -> None:
+    """Case records as gzipped JSON lines; gzip mtime 0, so that the same campaign gives the same bytes."""
+    body = "".join(json.dumps(r, default=float, sort_keys=True) + "\n" for r in recs).encode()
+    with open(path, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
+        fh.write(body)
+
+
 def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thresholds: dict | None = None) -> dict:
     thr = load_stage_thresholds() if thresholds is None else thresholds
     t0 = time.perf_counter()
@@ -288,9 +295,7 @@ def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thr
     sc["seconds"] = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    body = "".join(json.dumps(r, default=float, sort_keys=True) + "\n" for r in recs).encode()
-    with open(out / "cases.jsonl.gz", "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
-        fh.write(body)  # mtime 0: the same campaign gives the same bytes
+    _write_records(out / "cases.jsonl.gz", recs)
     write_scores(sc, out, command or f"selfsense gap blind --n {n} --seed {seed} --jobs {jobs} --out {out}")
     return sc
 
@@ -369,9 +374,7 @@ def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> 
     sc["seconds"] = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    body = "".join(json.dumps(r, default=float, sort_keys=True) + "\n" for r in recs).encode()
-    with open(out / "tip_cases.jsonl.gz", "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
-        fh.write(body)
+    _write_records(out / "tip_cases.jsonl.gz", recs)
     (out / "tip_scores.json").write_text(json.dumps(sc, indent=1, default=float))
     md = ["# Tip tier: how far a named effect shrinks the tip error", "",
           f"Command: `{command or f'selfsense gap blind --tip --n {n} --seed {seed} --jobs {jobs} --out {out}'}`", "",

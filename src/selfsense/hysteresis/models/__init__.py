@@ -37,6 +37,20 @@ __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "
 MAX_FIT_ROWS = 200_000
 
 
+def normalise_input(model, qs, dt: float) -> None:
+    """Set ``model``'s input normalisation from the calibration charge segments ``qs`` (``q_lo_`` = min(0, min q),
+    ``q_span_`` = 1.02 x the range above it) and its sample time ``dt_`` [s]; raise on a bad dt or no excitation."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"H model fit: dt must be a positive sample time [s], got {dt!r}")
+    allq = np.concatenate(qs)
+    model.q_lo_ = float(min(0.0, allq.min()))
+    span = float(allq.max() - model.q_lo_)
+    if not span > 0:
+        raise DegenerateFitError("H model fit: the calibration charge does not vary (no excitation)")
+    model.q_span_ = span * 1.02
+    model.dt_ = float(dt)
+
+
 def fit_stride(lengths) -> int:
     """Row stride that keeps the stacked fit rows of ``lengths`` samples within :data:`MAX_FIT_ROWS`."""
     return max(1, int(np.ceil(sum(int(n) for n in lengths) / MAX_FIT_ROWS)))
@@ -117,15 +131,7 @@ class LinearParamH:
         """Set the input normalisation (charge range of the calibration data) and the sample time, without
         solving: what :meth:`design` needs."""
         qs, _ = _segments(q)
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"H model fit: dt must be a positive sample time [s], got {dt!r}")
-        allq = np.concatenate(qs)
-        self.q_lo_ = float(min(0.0, allq.min()))
-        span = float(allq.max() - self.q_lo_)
-        if not span > 0:
-            raise DegenerateFitError("H model fit: the calibration charge does not vary (no excitation)")
-        self.q_span_ = span * 1.02
-        self.dt_ = float(dt)
+        normalise_input(self, qs, dt)
         self._setup([self._u(x) for x in qs])
         return self
 

@@ -30,7 +30,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from . import DEFAULT_CREEP_TAU_S, DegenerateFitError, _segments, fit_stride, ridge_lstsq
+from . import DEFAULT_CREEP_TAU_S, DegenerateFitError, _segments, fit_stride, normalise_input, ridge_lstsq
 from ._duhem import duhem_run, duhem_terms, n_terms
 from ._grid import play_features, relaxation_bank, relaxation_output
 
@@ -116,16 +116,8 @@ class DuhemH:
         from scipy.optimize import least_squares
 
         qs, vs = _segments(q, v)
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"H model fit: dt must be a positive sample time [s], got {dt!r}")
+        normalise_input(self, qs, dt)
         lengths = [len(x) for x in qs]
-        allq = np.concatenate(qs)
-        self.q_lo_ = float(min(0.0, allq.min()))
-        span = float(allq.max() - self.q_lo_)
-        if not span > 0:
-            raise DegenerateFitError("H model fit: the calibration charge does not vary (no excitation)")
-        self.q_span_ = span * 1.02
-        self.dt_ = float(dt)
         us = [self._u(x) for x in qs]
         Es = self._split(extra, lengths, "extra")
         masks = self._split(row_mask, lengths, "row_mask")
