@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .blindsim import FAMILIES, simulate_family_case
-from .stages import MEMBERS, STAGES, diagnose_stages, effect_of
+from .stages import MEMBERS, STAGES, diagnose_stages, stage_residuals
 
 __all__ = ["draw_case", "run_case", "null_gains", "calibrate", "score", "run_campaign", "load_stage_thresholds",
            "TARGETS"]
@@ -53,12 +53,6 @@ def draw_case(i: int, seed: int, open_set_rate: float = 0.1) -> dict:
             "noise_seed": int(seed) * 7_919 + int(i), "effects": eff}
 
 
-def _residuals(trials, meta, rig) -> dict:
-    from .stages import stage_residuals
-
-    return stage_residuals(trials, meta, rig)
-
-
 def run_case(i: int, seed: int, thresholds: dict | None = None, case: dict | None = None,
              truth: bool = True) -> dict:
     """One blind case: simulate, diagnose (dataset only), then the counterfactual truth per stage."""
@@ -80,12 +74,12 @@ def run_case(i: int, seed: int, thresholds: dict | None = None, case: dict | Non
     without = {}
     for e in sorted(eff):
         tr2, me2, rig2 = simulate_family_case(fam, ds, {k: v for k, v in eff.items() if k != e}, ns, T_CASE, FS_CASE)
-        without[e] = _residuals(tr2, me2, rig2)
+        without[e] = stage_residuals(tr2, me2, rig2)
     trn, men, rign = simulate_family_case(fam, ds, {}, ns + 104_729, T_CASE, FS_CASE)
-    r_noise = _residuals(trn, men, rign)
+    r_noise = stage_residuals(trn, men, rign)
     if eff:
         tr0, me0, rig0 = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE)
-        r_null = _residuals(tr0, me0, rig0)
+        r_null = stage_residuals(tr0, me0, rig0)
     else:
         r_null = r_with
     rec["truth"] = {"r_with": r_with, "r_without": without, "r_null": r_null, "r_noise": r_noise,
@@ -97,13 +91,11 @@ def run_case(i: int, seed: int, thresholds: dict | None = None, case: dict | Non
 # ------------------------------------------------------------------------------------------------ thresholds
 def null_gains(i: int, seed: int) -> dict:
     """Member and generic gains alone over the nominal model, per stage, on an effect-free case."""
-    from .stages import _context, attach_force_estimate, build_stage, stage_gains, stage_signals
+    from .stages import build_stage, prepare_signals, stage_gains
 
     c = draw_case(i, seed)
     tr, me, rig = simulate_family_case(c["family"], c["device_seed"], {}, c["noise_seed"], T_CASE, FS_CASE)
-    sigs = stage_signals(tr, me, rig)
-    attach_force_estimate(sigs, tr, me, rig)
-    ctx = _context(sigs)
+    sigs, ctx = prepare_signals(tr, me, rig)
     out = {"family": c["family"]}
     for st in STAGES:
         sm = build_stage(st, sigs, ctx)
@@ -120,7 +112,7 @@ def calibrate(n: int, seed: int, jobs: int = 1, q: float = 0.95, floor: float = 
     s_m = max(q-quantile of its null gains, ``floor``); one multiplier T = q-quantile over the cases of
     max_m g_m / s_m (studentised max statistic: on the null sample at most 1 - q of the cases have any member
     above threshold = family-wise correction); threshold_m = T s_m. Generic thresholds per stage: q-quantile."""
-    rows = _map(null_gains, [(i, seed) for i in range(n)], jobs)
+    rows = _map(null_gains, [(i, seed) for i in range(n)], jobs, "stage null cases")
     members = list(MEMBERS)
     G = np.array([[r.get(m, np.nan) for m in members] for r in rows], float)
     fl = [FLOOR_LEVEL if MEMBERS[m].gain is not None else FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor)
@@ -144,13 +136,11 @@ def load_stage_thresholds(path: Path | None = None) -> dict:
     return d["thresholds"]
 
 
-def _map(fn, args, jobs):
-    if jobs <= 1:
-        return [fn(*a) for a in args]
-    from concurrent.futures import ProcessPoolExecutor
+def _map(fn, args, jobs, desc: str) -> list:
+    """``[fn(*a) for a in args]`` through the benchmark's process map (order kept, progress on a terminal only)."""
+    from .benchmark import _map_jobs
 
-    with ProcessPoolExecutor(jobs) as ex:
-        return list(ex.map(_star, [(fn, a) for a in args], chunksize=1))
+    return _map_jobs(_star, [(fn, a) for a in args], jobs, desc)
 
 
 def _star(x):
@@ -290,7 +280,7 @@ def _write_records(path: Path, recs: list[dict]) -> None:
 def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thresholds: dict | None = None) -> dict:
     thr = load_stage_thresholds() if thresholds is None else thresholds
     t0 = time.perf_counter()
-    recs = _map(_case_job, [(i, seed, thr) for i in range(n)], jobs)
+    recs = _map(run_case, [(i, seed, thr) for i in range(n)], jobs, "stage blind cases")
     sc = score(recs)
     sc["seconds"] = time.perf_counter() - t0
     out = Path(out)
@@ -298,10 +288,6 @@ def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thr
     _write_records(out / "cases.jsonl.gz", recs)
     write_scores(sc, out, command or f"selfsense gap blind --n {n} --seed {seed} --jobs {jobs} --out {out}")
     return sc
-
-
-def _case_job(i, seed, thr):
-    return run_case(i, seed, thr)
 
 
 # ------------------------------------------------------------------------------------------------ tip tier
@@ -369,7 +355,7 @@ def score_tip(records: list[dict], k: float = 3.0) -> dict:
 def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> dict:
     thr = load_stage_thresholds()
     t0 = time.perf_counter()
-    recs = _map(run_tip_case, [(i, seed, thr) for i in range(n)], jobs)
+    recs = _map(run_tip_case, [(i, seed, thr) for i in range(n)], jobs, "tip cases")
     sc = score_tip(recs)
     sc["seconds"] = time.perf_counter() - t0
     out = Path(out)

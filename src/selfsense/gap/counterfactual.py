@@ -59,7 +59,8 @@ def corrections(verdict: dict) -> dict:
         for s in sigs:
             if m.stage == "load" and "f_hat" not in s.extra:
                 continue
-            col = m.cols(s, ctx, a["grid_value"]) @ c if kind != "voltage_amp" else m.cols(s, ctx, a["grid_value"])[:, 0]
+            cols = m.cols(s, ctx, a["grid_value"])
+            col = cols[:, 0] if kind == "voltage_amp" else cols @ c
             if kind == "charge_mech":
                 per[s.name] = {"q": ctx["q_span"] * col / a["coef_ref"]}
             elif kind == "charge_el":
@@ -74,6 +75,13 @@ def corrections(verdict: dict) -> dict:
                 per[s.name] = {"f": col}
         out[e["effect"]] = per
     return out
+
+
+def _add(df: pd.DataFrame, col: str, a: int, v: np.ndarray) -> None:
+    """``df[col][a:] += v`` on a fresh array (the frame may share its columns with the uncorrected one)."""
+    x = df[col].to_numpy(float).copy()
+    x[a:] += v
+    df[col] = x
 
 
 def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> tuple[dict, dict]:
@@ -92,22 +100,14 @@ def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> 
             for k, v in p.items():
                 a = n - len(v)
                 if k in ("q", "V"):
-                    col = "q" if k == "q" else "V"
-                    x = df[col].to_numpy(float).copy()
-                    x[a:] += v
-                    df[col] = x
+                    _add(df, k, a, v)
                     if k == "V" and "V_c" in df:
-                        vc = df["V_c"].to_numpy(float).copy()
-                        vc[a:] += v
-                        df["V_c"] = vc
+                        _add(df, "V_c", a, v)
                 else:
                     o = oc.setdefault(k, np.zeros(n))
                     o[a:] += v
                     if meta is not None and t in meta.index and meta.loc[t, "role"] == "calibration":
-                        ref = "dx_ref" if k == "dx" else "f_ref"
-                        r = df[ref].to_numpy(float).copy()
-                        r[a:] -= v
-                        df[ref] = r
+                        _add(df, "dx_ref" if k == "dx" else "f_ref", a, -v)
         new[t] = df
         outc[t] = oc
     return new, outc
@@ -171,7 +171,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             # output-only corrections (charge-free motion, load stage) leave the estimator's inputs unchanged; with
             # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
             # estimator costs tens of seconds), which ignores the small change of its coefficients
-            reuse = fitted is not None and not S or (fitted is not None and not refit_outputs and not inputs_touched(S))
+            reuse = fitted is not None and (not S or (not refit_outputs and not inputs_touched(S)))
             tabs[S] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None)
         return tabs[S]
 

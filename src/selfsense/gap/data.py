@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["Case", "load_case", "prepare_fallback", "load_truth"]
+__all__ = ["Case", "load_case", "prepare_fallback", "load_truth", "within_budget"]
 
 PREPARED = ("t", "V", "q", "u_cmd", "relay", "dx_ref", "f_ref", "V_c", "V_s")
 
@@ -78,6 +78,15 @@ def load_truth(dataset_dir: Path) -> tuple[dict | None, dict | None]:
     return truth, man
 
 
+def within_budget(df: pd.DataFrame, budget: int) -> tuple[pd.DataFrame, int]:
+    """``df`` reduced to block means of k samples when it is longer than ``budget`` samples (the charge must have
+    been integrated at the full rate before), and k (1 when it fits) (:mod:`selfsense.io.budget`)."""
+    from selfsense.io.budget import block_mean, decimation_factor
+
+    k = decimation_factor(len(df), budget)
+    return (block_mean(df, k).reset_index(drop=True) if k > 1 else df), int(k)
+
+
 def load_case(dataset_dir: str | Path, with_truth: bool = True, max_samples: int | None = None) -> Case:
     """Read and validate a raw dataset (DATA_FORMAT.md) through ``selfsense.io`` and prepare every trial.
 
@@ -86,7 +95,7 @@ def load_case(dataset_dir: str | Path, with_truth: bool = True, max_samples: int
     (thesis eq. 57), and its truth frame with the same k; ``case.decimated`` maps such trials to k. Memory then
     grows with the budget, not with the trial length."""
     from selfsense.io import load_dataset, trial_signals
-    from selfsense.io.budget import GAP_MAX_SAMPLES, block_mean, decimation_factor
+    from selfsense.io.budget import GAP_MAX_SAMPLES, block_mean
 
     budget = GAP_MAX_SAMPLES if max_samples is None else int(max_samples)
     d = Path(dataset_dir)
@@ -94,12 +103,9 @@ def load_case(dataset_dir: str | Path, with_truth: bool = True, max_samples: int
     meta = ds.trials.set_index("trial")
     trials, decimated = {}, {}
     for t in meta.index:
-        df = _prepare(trial_signals(d, t, ds.rig), ds.rig)
-        k = decimation_factor(len(df), budget)
+        trials[t], k = within_budget(_prepare(trial_signals(d, t, ds.rig), ds.rig), budget)
         if k > 1:
-            df = block_mean(df, k).reset_index(drop=True)
             decimated[t] = k
-        trials[t] = df
     truth, man = load_truth(d) if with_truth else (None, None)
     if truth is not None:
         truth = {t: (block_mean(f, decimated[t]).reset_index(drop=True) if t in decimated else f)

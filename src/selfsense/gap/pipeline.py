@@ -27,11 +27,11 @@ __all__ = ["run_pipeline_diagnosis", "diagnose_dataset", "why_not"]
 def why_not(verdict: dict) -> list[dict]:
     """One row per library member: accepted or, if not, why (from the verdict's numbers)."""
     rows = []
+    thr = verdict.get("thresholds", {})
     for st, d in verdict["stages"].items():
         if not d.get("observed"):
             continue
         acc = {a["member"]: a for a in d["accepted"]}
-        thr = verdict.get("thresholds", {})
         for m, g in d["gains_alone"].items():
             if m == "generic":
                 continue
@@ -60,9 +60,9 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
     from .counterfactual import counterfactual
     from .protocol import excitation_check, proposal
 
-    thr = load_stage_thresholds() if thresholds is None else thresholds
     from .stages import diagnose_stages
 
+    thr = load_stage_thresholds() if thresholds is None else thresholds
     v = diagnose_stages(trials, meta, rig, thr)
     cf = counterfactual(trials, meta, rig, v, make_estimator, n_boot=n_boot, seed=seed, fitted=fitted,
                         refit_outputs=refit_outputs)
@@ -172,7 +172,7 @@ def _figure(v: dict, path: Path) -> None:
 def write(v: dict, out: Path, figures: bool = True) -> None:
     from selfsense.io import atomic_write_text
 
-    from .report import _json_default, shrink_markdown  # noqa: F401
+    from .report import _json_default
 
     out.mkdir(parents=True, exist_ok=True)
     T = _tables(v)
@@ -191,16 +191,30 @@ def write(v: dict, out: Path, figures: bool = True) -> None:
         _figure(v, out / "stage_gains.png")
 
 
+def _configured(config: Mapping[str, Any]):
+    """(SensingConfig of the ``calibration`` / ``estimation`` sections, a factory rig -> unfitted estimator)."""
+    from selfsense.sensing.estimator import SelfSensingEstimator
+    from selfsense.stages import sensing_config
+
+    cfg = sensing_config(config)
+    return cfg, lambda rig_: SelfSensingEstimator(config=cfg, rig=rig_)
+
+
+def _config_record(cfg) -> dict:
+    return {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()}
+
+
 def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
                            config: Mapping[str, Any], out_dir: str | Path, table3_csv: str | Path | None = None,
                            seed: int = 0, figures: bool = True, force: bool = True) -> dict:
     """The pipeline's gap rule: pipeline signals + fitted model -> verdict files in ``out_dir``."""
     from selfsense import io as sio
     from selfsense.io import output_dir
-    from selfsense.sensing.estimator import SelfSensingEstimator
-    from selfsense.stages import load_estimator, sensing_config
+    from selfsense.stages import load_estimator
 
-    from selfsense.io.budget import GAP_MAX_SAMPLES, block_mean, decimation_factor
+    from selfsense.io.budget import GAP_MAX_SAMPLES
+
+    from .data import within_budget
 
     rig = sio.load_rig(dataset_dir)
     meta = sio.load_trials(dataset_dir).set_index("trial")
@@ -208,25 +222,17 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
     # means of k samples (the charge was integrated at the full rate by the pipeline's ingest)
     trials, decimated = {}, {}
     for t, p in signal_paths.items():
-        df = pd.read_parquet(p)
-        k = decimation_factor(len(df), GAP_MAX_SAMPLES)
+        trials[t], k = within_budget(pd.read_parquet(p), GAP_MAX_SAMPLES)
         if k > 1:
-            df = block_mean(df, k).reset_index(drop=True)
-            decimated[t] = int(k)
-        trials[t] = df
+            decimated[t] = k
     meta = meta.loc[[t for t in meta.index if t in trials]]
     fitted = load_estimator(dataset_dir, model_json)
-    cfg = sensing_config(config)
-
-    def make(rig_):
-        return SelfSensingEstimator(config=cfg, rig=rig_)
-
+    cfg, make = _configured(config)
     v = diagnose_dataset(trials, meta, rig, make, fitted=fitted, seed=seed, refit_outputs=False)
     v["counterfactual_note"] = ("charge and voltage corrections: the configured estimator recalibrated on the "
                                 "corrected calibration trials; output corrections (charge-free motion, load stage): "
                                 "the pipeline's fitted model with the correction added to its estimate")
-    v["estimator"] = {"config": {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()},
-                      "model": str(model_json)}
+    v["estimator"] = {"config": _config_record(cfg), "model": str(model_json)}
     if decimated:
         v["decimated"] = decimated
         v["decimation_note"] = ("trials longer than the diagnostic's sample budget were diagnosed on block means of k "
@@ -248,21 +254,15 @@ def run_stage_diagnose(dataset_dir: str | Path, out_dir: str | Path, config: Map
     the ``calibration`` / ``estimation`` sections, default: the pipeline's defaults) is calibrated on its
     calibration trials, then diagnosed; ``out_dir`` is written all-or-nothing."""
     from selfsense.io import check_output_dir, output_dir
-    from selfsense.sensing.estimator import SelfSensingEstimator
-    from selfsense.stages import sensing_config
 
     from .data import load_case
 
     check_output_dir(out_dir, [dataset_dir], force=force)
     case = load_case(dataset_dir, with_truth=False)
-    cfg = sensing_config(config or {})
-
-    def make(rig_):
-        return SelfSensingEstimator(config=cfg, rig=rig_)
-
+    cfg, make = _configured(config or {})
     fitted = make(case.rig).fit(case.trials, case.meta)
     v = diagnose_dataset(case.trials, case.meta, case.rig, make, fitted=fitted, seed=seed, refit_outputs=False)
-    v["estimator"] = {"config": {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()}}
+    v["estimator"] = {"config": _config_record(cfg)}
     if case.decimated:
         v["decimated"] = {t: int(k) for t, k in sorted(case.decimated.items())}
     with output_dir(out_dir, [dataset_dir], force=force) as tmp:

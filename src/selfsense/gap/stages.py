@@ -42,7 +42,8 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-__all__ = ["StageSignals", "stage_signals", "MEMBERS", "STAGES", "diagnose_stages", "stage_residuals", "GramCV"]
+__all__ = ["StageSignals", "stage_signals", "prepare_signals", "MEMBERS", "STAGES", "diagnose_stages",
+           "stage_residuals", "GramCV"]
 
 N_BLOCKS = 6     #: contiguous CV blocks per trial
 
@@ -129,10 +130,10 @@ def rate_limit(x: np.ndarray, rate: float, dt: float) -> np.ndarray:
     return _slew_limit(np.asarray(x, float), np.arange(len(x)) * dt, rate)
 
 
-def _plays(x: np.ndarray, radii) -> np.ndarray:
+def _plays(x: np.ndarray, radii, z0=None) -> np.ndarray:
     from selfsense.hysteresis.operators import play_operator
 
-    return play_operator(np.asarray(x, float), np.asarray(radii, float))
+    return play_operator(np.asarray(x, float), np.asarray(radii, float), z0)
 
 
 def _cumint(x: np.ndarray, dt: float) -> np.ndarray:
@@ -194,13 +195,7 @@ def _c_amplifier(s, ctx, g):
 def _c_preload(s, ctx, g):
     v = s.V / ctx["v_span"]
     r = np.array([float(g)])
-    return _z0play(v, r) - _plays(v, r)
-
-
-def _z0play(Q, r):
-    from selfsense.hysteresis.operators import play_operator
-
-    return play_operator(np.asarray(Q, float), r, z0=np.zeros_like(r) + r)  # a play pre-driven up to +r
+    return _plays(v, r, z0=r.copy()) - _plays(v, r)  # a play pre-driven up to +r, less the relaxed one
 
 
 def _c_one_sided(s, ctx, g):
@@ -452,6 +447,7 @@ def build_stage(stage: str, sigs: list[StageSignals], ctx: dict | None = None,
     ctx["n_trials"] = len(rows)
     blocks, mats, y = [], [], []
     names = [] if nominal_only else [m for m in MEMBERS.values() if m.stage == stage]
+    widths = None  # column count of every part (nominal, each member at each grid value, generic)
     for k, s in enumerate(rows):
         parts = [_nominal(stage, s, ctx, len(rows))]
         for m in names:
@@ -459,20 +455,21 @@ def build_stage(stage: str, sigs: list[StageSignals], ctx: dict | None = None,
                 parts.append(m.cols(s, ctx, g))
         if not nominal_only:
             parts.append(_generic(stage, s, ctx))
+        widths = widths or [p.shape[1] for p in parts]
         mats.append(np.column_stack(parts))
         y.append(_target(stage, s))
         n = len(y[-1])
         blocks.append(k * N_BLOCKS + np.minimum((np.arange(n) * N_BLOCKS) // n, N_BLOCKS - 1))
     Z, yv, bl = np.vstack(mats), np.concatenate(y), np.concatenate(blocks)
-    p0 = _nominal(stage, rows[0], ctx, len(rows)).shape[1]
-    j = p0
+    p0 = widths[0]
+    j, part = p0, 1
     member_cols = {}
     for m in names:
         lst = []
-        for g in m.grid:
-            w = m.cols(rows[0], ctx, g).shape[1]
-            lst.append(list(range(j, j + w)))
-            j += w
+        for _ in m.grid:
+            lst.append(list(range(j, j + widths[part])))
+            j += widths[part]
+            part += 1
         member_cols[m.name] = lst
     generic = list(range(j, Z.shape[1]))
     good = np.isfinite(Z).all(1) & np.isfinite(yv)
@@ -545,15 +542,15 @@ def diagnose_stage(sm: StageModel, thr: dict) -> dict:
                          "rms_before": r_before, "rms_after": sm.r(base)})
         left.remove(m)
     gen = 1.0 - sm.r(base + sm.generic) / sm.r(base)
+    cols_of = {a["member"]: sm.member_cols[a["member"]][list(MEMBERS[a["member"]].grid).index(a["grid_value"])]
+               for a in accepted}
     if accepted:  # stage-fitted coefficients of the final stage model (all data), kept fixed for the correction
         w = dict(zip(sorted(set(base)), sm.cv.fit(base)))
         for a in accepted:
-            cols = sm.member_cols[a["member"]][list(MEMBERS[a["member"]].grid).index(a["grid_value"])]
-            a["coef"] = [float(w[c]) for c in cols]
+            a["coef"] = [float(w[c]) for c in cols_of[a["member"]]]
             a["coef_ref"] = float(w[sm.nominal[0]])  # the first nominal column: u (mechanical), v (electrical), f^
     unexplained = bool(gen > thr.get(f"generic@{sm.stage}", np.inf)) or any("open set" in n for n in notes)
-    shrink_alone = {a["member"]: r_nom - sm.r(sm.nominal + sm.member_cols[a["member"]][
-        list(MEMBERS[a["member"]].grid).index(a["grid_value"])]) for a in accepted}
+    shrink_alone = {m: r_nom - sm.r(sm.nominal + c) for m, c in cols_of.items()}
     return {"stage": sm.stage, "rms_nominal": r_nom, "rms_after": sm.r(base), "rms_target": sm.y_rms,
             "n_rows": sm.n_rows, "trials": sm.trials, "accepted": accepted, "generic_gain_after": float(gen),
             "unexplained": unexplained, "notes": notes, "shrink_alone": shrink_alone,
@@ -617,11 +614,16 @@ def attach_force_estimate(sigs: list[StageSignals], trials: dict, meta: pd.DataF
         s.extra["f_hat"] = e["f_hat"].to_numpy(float)[a:]
 
 
-def stage_residuals(trials: dict, meta: pd.DataFrame, rig) -> dict:
-    """Held-out RMS of every stage's nominal model (what the blind check's truth compares)."""
+def prepare_signals(trials: dict, meta: pd.DataFrame, rig) -> tuple[list[StageSignals], dict]:
+    """Stage signals of every trial with the nominal force estimate attached, and the dataset's scales."""
     sigs = stage_signals(trials, meta, rig)
     attach_force_estimate(sigs, trials, meta, rig)
-    ctx = _context(sigs)
+    return sigs, _context(sigs)
+
+
+def stage_residuals(trials: dict, meta: pd.DataFrame, rig) -> dict:
+    """Held-out RMS of every stage's nominal model (what the blind check's truth compares)."""
+    sigs, ctx = prepare_signals(trials, meta, rig)
     out = {}
     for st in STAGES:
         sm = build_stage(st, sigs, ctx, nominal_only=True)
@@ -634,17 +636,12 @@ def diagnose_stages(trials: dict, meta: pd.DataFrame, rig, thresholds: dict) -> 
     """The stage-wise verdict of a dataset: per stage the nominal held-out RMS, accepted members with their
     gains, thresholds, stage-fitted grid values and shrink, the open-set flag; then the named effects ranked by
     their gain over threshold."""
-    sigs = stage_signals(trials, meta, rig)
-    attach_force_estimate(sigs, trials, meta, rig)
-    ctx = _context(sigs)
-    stages, models = {}, {}
+    sigs, ctx = prepare_signals(trials, meta, rig)
+    stages = {}
     for st in STAGES:
         sm = build_stage(st, sigs, ctx)
-        if sm is None:
-            stages[st] = {"stage": st, "observed": False}
-            continue
-        stages[st] = {"observed": True, **diagnose_stage(sm, thresholds)}
-        models[st] = sm
+        stages[st] = ({"stage": st, "observed": False} if sm is None
+                      else {"observed": True, **diagnose_stage(sm, thresholds)})
     _head_to_head(stages)
     _cross_stage(stages)
     effects: dict = {}
