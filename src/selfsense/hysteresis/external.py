@@ -4,12 +4,16 @@ Pairs (fit -> evaluate), errors in % of the evaluation output range (RMS / max):
 - SmartHysteresis ``hysteresis_v_150_1hz.csv``: first half -> second half (input volt [V], output disp [um]);
 - danny_preisach ``bigsine_1`` -> ``sine50_1`` and ``prbn_1`` (input Pdrag voltage [V], output Mling [um]);
 - SLAC quadrupole ``strdat.ru3`` -> ``strdat.ru4`` and back (current [A] -> integrated gradient [T]).
-The model is selected by blocked cross-validation on the fit record only; baselines: a straight line and a plain
-10-operator Prandtl-Ishlinskii operator fitted by non-negative least squares (the data's PROVENANCE.md). The aixACCT
-PNZT record (a poling pulse of a switching ferroelectric) is for charge-drift handling, not for H(q).
+The model is selected by blocked cross-validation on the fit record only (:func:`select_external`: the registry's
+candidates plus the non-negative-density twin of each PI and Preisach candidate, then the one-standard-error rule
+towards the most constrained class); baselines: a straight line and a plain 10-operator Prandtl-Ishlinskii operator
+fitted by non-negative least squares (the data's PROVENANCE.md). A record's declared prehistory (the SLAC runs: the
+standardisation cycle 0 -> 165 A -> 0 before each run) is the initial state of every candidate
+(:class:`PrehistoryH`). The aixACCT PNZT record (a poling pulse of a switching ferroelectric) is for charge-drift
+handling, not for H(q).
 
-Run: ``selfsense fit-external [--out FILE.md] [--data-dir DIR] [--fit FILE:X:Y[:T] [--eval FILE:X:Y[:T]]]`` or
-``python -m selfsense.hysteresis.external``.
+Run: ``selfsense fit-external [--out FILE.md] [--data-dir DIR] [--fit FILE:X:Y[:T] [--eval FILE:X:Y[:T]]
+[--prehistory X1,X2,...] [--quasi-static]]`` or ``python -m selfsense.hysteresis.external``.
 """
 
 from __future__ import annotations
@@ -84,7 +88,7 @@ class PIBaseline:
 
 
 def _pairs(data_dir: Path, sub_smart: int, sub_danny: int):
-    """Yield (key, label, x_fit, y_fit, dt_fit, x_eval_full, y_eval_full, eval_mask, dt_eval)."""
+    """Yield (key, label, x_fit, y_fit, dt_fit, x_eval_full, y_eval_full, eval_mask, dt_eval, prehistory)."""
     t, v, d = load_smart(data_dir)
     t, v, d = t[::sub_smart], v[::sub_smart], d[::sub_smart]
     dt = float(np.median(np.diff(t)))
@@ -92,58 +96,217 @@ def _pairs(data_dir: Path, sub_smart: int, sub_danny: int):
     mask = np.zeros(len(v), bool)
     mask[half:] = True
     # evaluation runs over the whole record so the second half starts from the state the first half left
-    yield "smart", "SmartHysteresis 1st half -> 2nd half", v[:half], d[:half], dt, v, d, mask, dt
+    yield "smart", "SmartHysteresis 1st half -> 2nd half", v[:half], d[:half], dt, v, d, mask, dt, None
     tb, vb, db = load_danny(data_dir, "bigsine_1")
     tb, vb, db = tb[::sub_danny], vb[::sub_danny], db[::sub_danny]
     dtb = float(np.median(np.diff(tb)))
     for name in ("sine50_1", "prbn_1"):
         te, ve, de = load_danny(data_dir, name)
         ve, de = ve[::sub_danny], de[::sub_danny]
-        yield name, f"danny bigsine_1 -> {name}", vb, db, dtb, ve, de, np.ones(len(ve), bool), dtb
+        yield name, f"danny bigsine_1 -> {name}", vb, db, dtb, ve, de, np.ones(len(ve), bool), dtb, None
     slac = data_dir / "slac_quadrupole"
     if (slac / "strdat.ru3").is_file() and (slac / "strdat.ru4").is_file():
-        from .ri_cli import parse_slac_report
+        from .ri_cli import SLAC_I_MAX, parse_slac_report
 
         r3, r4 = parse_slac_report(slac / "strdat.ru3"), parse_slac_report(slac / "strdat.ru4")
-        # quasi-static tables: one "sample" per current step (dt = 1 s is nominal; no creep on these records)
+        # quasi-static tables: one "sample" per current step (dt = 1 s is nominal; no creep on these records).
+        # Both runs start at the remanent BL = 0.034 T left by the magnet's standardisation cycle 0 -> I_max -> 0
+        # (I_max = 165 A, the "Max" of the run headers; at least the fit run's largest current): that cycle is the
+        # records' declared prehistory, the same for the fit and the evaluation run
         for key, (a, b) in {"slac_ru3_ru4": (r3, r4), "slac_ru4_ru3": (r4, r3)}.items():
+            pre = (0.0, max(SLAC_I_MAX, float(np.max(a["current"]))), 0.0)
             yield (key, f"SLAC {key[5:8]} -> {key[9:]}", a["current"], a["BL"], 1.0, b["current"], b["BL"],
-                   np.ones(len(b["current"]), bool), 1.0)
+                   np.ones(len(b["current"]), bool), 1.0, pre)
 
 
-#: candidates of the real-data check: the registry's, without the creep bank on the quasi-static SLAC tables
+class PrehistoryH:
+    """A registry model linear in its parameters (:class:`selfsense.hysteresis.models.LinearParamH`) whose operators
+    start from a declared input prehistory instead of the relaxed state: the ``prehistory`` input samples are run
+    through the operators (and the creep bank) before every record, and their outputs, which were not measured,
+    never enter the fit. This is the record's initial magnetic / electric state as part of the model: a record that
+    starts at remanence after a standardisation cycle 0 -> I_max -> 0 has its play states z0 (the initial states of
+    the play operators, 000_18d138f03f1777c3.txt eqs. (29)-(31)) and Preisach states set by that cycle (Mayergoyz's
+    wiping-out: only the cycle's extrema matter to a rate-independent model), not relaxed. The prehistory samples
+    come just before the record at its sample time (what a creep bank sees). The input normalisation covers the
+    prehistory, so thresholds reach the cycle's peak."""
+
+    def __init__(self, inner, prehistory):
+        from .models import LinearParamH
+
+        if not isinstance(inner, LinearParamH):
+            raise ValueError(f"prehistory: {inner.label()} is not linear in its parameters (it runs from the relaxed "
+                             "state only)")
+        pre = np.asarray(prehistory, float).ravel()
+        if pre.size < 1 or not np.all(np.isfinite(pre)):
+            raise ValueError(f"prehistory: expected finite input values, got {prehistory!r}")
+        self.inner, self.prehistory = inner, pre
+        self.kind, self.ridge, self.convex = inner.kind, inner.ridge, True
+        self.nonneg = bool(getattr(inner, "nonneg", False))
+        self.coef_, self.extra_coef_ = None, np.zeros(0)
+
+    def _pad(self, stride: int) -> np.ndarray:
+        # prehistory left-padded with its first value to a multiple of the row stride, so that the strided rows of
+        # the record stay the record's every stride-th sample (a rate-independent operator ignores repeated inputs)
+        n = self.prehistory.size
+        return np.concatenate([np.full(-(-n // stride) * stride - n, self.prehistory[0]), self.prehistory])
+
+    def _bounds(self, n_cols: int):
+        return self.inner._bounds(n_cols)
+
+    def prepare(self, q, dt: float):
+        qs = q if isinstance(q, (list, tuple)) else [q]
+        self.inner.prepare([self.prehistory] + [np.asarray(x, float) for x in qs], dt)
+        return self
+
+    def design(self, q, dt: float, stride: int = 1):
+        p = self._pad(int(stride))
+        X, pen = self.inner.design(np.concatenate([p, np.asarray(q, float)]), dt, int(stride))
+        return X[p.size // int(stride):], pen
+
+    def fit(self, q, v, dt: float, extra=None):
+        from .models import LinearParamH
+
+        LinearParamH.fit(self, q, v, dt, extra)   # the base fit through this class's prepare / design
+        self.inner.coef_ = self.coef_
+        return self
+
+    def predict(self, q, dt: float | None = None) -> np.ndarray:
+        self.inner.coef_ = self.coef_
+        return self.inner.predict(np.concatenate([self.prehistory, np.asarray(q, float)]), dt)[self.prehistory.size:]
+
+    def __call__(self, q):
+        return self.predict(q)
+
+    def label(self) -> str:
+        return f"{self.inner.label()} from prehistory {_fmt_pre(self.prehistory)}"
+
+
+def _fmt_pre(pre) -> str:
+    return " -> ".join(f"{p:g}" for p in pre)
+
+
+def _nonneg_variants(cands) -> tuple:
+    """The non-negative-density twin of every PI and Preisach candidate (the monotone-branch prior)."""
+    out = []
+    for k, p in cands:
+        if k in ("pi", "preisach") and not p.get("nonneg") and (k, {**p, "nonneg": True}) not in cands:
+            out.append((k, {**p, "nonneg": True}))
+    return tuple(out)
+
+
+#: candidates of the real-data check: the registry's, without the creep bank on the quasi-static SLAC tables, plus
+#: the non-negative (monotone) twin of each PI / Preisach candidate
 def _candidates(quasi_static: bool):
     from .models.select import DEFAULT_CANDIDATES
 
     if not quasi_static:
-        return DEFAULT_CANDIDATES
-    # few samples (one per current step): stronger ridges join the grid
-    return tuple((k, {**p, "creep": False}) if k not in ("linear",) else (k, p) for k, p in DEFAULT_CANDIDATES
-                 if k != "modified_pi") + (
-        ("pi", {"n_play": 10, "ridge": 1e-2, "creep": False}), ("pi", {"n_play": 10, "ridge": 1e-1, "creep": False}),
-        ("preisach", {"n_grid": 8, "n_play": 0, "ridge": 1e-2, "creep": False}),
-        ("pi", {"n_play": 10, "ridge": 1e-6, "creep": False, "nonneg": True}),
-        ("modified_pi", {"n_play": 12, "n_sup": 6, "creep": False}))
+        base = DEFAULT_CANDIDATES
+    else:
+        # few samples (one per current step): stronger ridges join the grid
+        base = tuple((k, {**p, "creep": False}) if k not in ("linear",) else (k, p) for k, p in DEFAULT_CANDIDATES
+                     if k != "modified_pi") + (
+            ("pi", {"n_play": 10, "ridge": 1e-2, "creep": False}), ("pi", {"n_play": 10, "ridge": 1e-1, "creep": False}),
+            ("preisach", {"n_grid": 8, "n_play": 0, "ridge": 1e-2, "creep": False}),
+            ("modified_pi", {"n_play": 12, "n_sup": 6, "creep": False}))
+    return tuple(base) + _nonneg_variants(base)
+
+
+def _constraint_class(model) -> int:
+    """0: non-negative density (the most constrained); 1: signed weights, convex fit; 2: non-convex search."""
+    if getattr(model, "nonneg", False):
+        return 0
+    return 1 if getattr(model, "convex", True) else 2
+
+
+def select_external(x, y, dt: float, candidates, prehistory=None, names=("fit record",), n_blocks: int = 5,
+                    thin: int = 1):
+    """Blocked CV on the fit record only (the folds of :func:`selfsense.hysteresis.models.select.select_h_model`),
+    then the one-standard-error rule (Hastie, Tibshirani & Friedman, Elements of Statistical Learning, sec. 7.10):
+    among the candidates whose mean fold RMS exceeds the best one's by no more than one standard error of the paired
+    fold differences, the most constrained class is taken (non-negative density, then signed convex fits, then
+    non-convex searches; the straight line only if it is the best), its best member selected. With ``prehistory``
+    every candidate linear in its parameters starts from it (:class:`PrehistoryH`); the others cannot and are
+    left out. Returns ``(model refitted on the whole record, table, warnings)``."""
+    from .models import DegenerateFitError, LinearParamH, fit_stride, make_model
+    from .models import select as S
+
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    k = fit_stride([len(x)])
+    folds = S.blocked_folds([len(x[::k])], n_blocks, rotate=S.ROTATE_FOLDS)
+    table, models = [], []
+    for kind, params in candidates:
+        model = make_model(kind, **params)
+        status = "ok"
+        if prehistory is not None and not isinstance(model, LinearParamH):
+            # a model fitted from the relaxed state only cannot honour the declared initial state: not offered
+            table.append({"kind": kind, "params": dict(params), "label": model.label(),
+                          "cv_rms_v": [float("nan")] * n_blocks, "cv_rms_mean_v": float("nan"),
+                          "status": "not offered: starts from the relaxed state only (a prehistory is declared)",
+                          "selected": False, "class": _constraint_class(model)})
+            models.append(model)
+            continue
+        try:
+            if prehistory is not None:
+                model = PrehistoryH(model, prehistory)
+            if isinstance(model, (LinearParamH, PrehistoryH)):
+                rms = S._cv_linear(model, [x], [y], dt, None, folds, thin)
+            elif getattr(model, "joint_extra", False):
+                rms = S._cv_masked(model, [x], [y], dt, None, n_blocks, S.ROTATE_FOLDS, thin * k)
+            elif k == 1:
+                rms = S._cv_qp(model, [x], [y], dt, None, folds, np.ones(1, bool), thin)
+            else:
+                raise ValueError(f"records of {len(x)} samples: the QP candidate is fitted on up to 200000 samples")
+        except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
+            rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+        table.append({"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
+                      "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
+                      "status": status, "selected": False, "class": _constraint_class(model)})
+        models.append(model)
+    ok = [i for i, r in enumerate(table) if np.isfinite(r["cv_rms_mean_v"])]
+    if not ok:
+        raise DegenerateFitError(f"H(q) selection on {list(names)}: no candidate could be fitted: "
+                                 + "; ".join(f"{r['label']}: {r['status']}" for r in table))
+    ib = min(ok, key=lambda i: table[i]["cv_rms_mean_v"])
+    best = np.asarray(table[ib]["cv_rms_v"])
+
+    def within_one_se(i):
+        d = np.asarray(table[i]["cv_rms_v"]) - best
+        return float(np.mean(d)) <= float(np.std(d, ddof=1) / np.sqrt(d.size))
+
+    near = [i for i in ok if i == ib or (table[i]["kind"] != "linear" and within_one_se(i))]
+    cls = min(table[i]["class"] for i in near)
+    isel = min((i for i in near if table[i]["class"] == cls), key=lambda i: table[i]["cv_rms_mean_v"])
+    table[isel]["selected"] = True
+    warnings = []
+    lin = next((r for r in table if r["kind"] == "linear" and np.isfinite(r["cv_rms_mean_v"])), None)
+    sel = table[isel]
+    if lin is not None and sel is not lin and not sel["cv_rms_mean_v"] < lin["cv_rms_mean_v"]:
+        raise DegenerateFitError(f"H(q) on {list(names)}: {sel['label']} does not beat a straight line in the "
+                                 f"cross-validation ({sel['cv_rms_mean_v']:.4g} vs {lin['cv_rms_mean_v']:.4g})")
+    if sel["kind"] == "linear":
+        warnings.append(f"H(q) on {list(names)}: no hysteresis model beats a straight line in the cross-validation")
+    model = models[isel]
+    model.fit(x, y, dt)
+    return model, table, warnings
 
 
 def fit_pair(x_fit, y_fit, dt_fit, x_eval, y_eval, dt_eval, mask=None, quasi_static: bool = False,
-             names=("fit record",)) -> dict:
-    """Select an H model by blocked CV on the fit record (selfsense.hysteresis.models.select), refit it on the whole
-    fit record and score it out of sample on the evaluation record, against a straight line and the plain
-    10-operator PI (NNLS) fitted on the same samples. Errors in % of the evaluation output range (RMS, max)."""
+             names=("fit record",), prehistory=None) -> dict:
+    """Select an H model by blocked CV on the fit record (:func:`select_external`), refit it on the whole fit
+    record and score it out of sample on the evaluation record, against a straight line and the plain 10-operator
+    PI (NNLS) fitted on the same samples. ``prehistory``: input values run through before each record (both start
+    from the state it leaves). Errors in % of the evaluation output range (RMS, max)."""
     from .models import LinearH
-    from .models.select import select_h_model
 
     x_fit, y_fit = np.asarray(x_fit, float), np.asarray(y_fit, float)
     x_eval, y_eval = np.asarray(x_eval, float), np.asarray(y_eval, float)
     mask = np.ones(len(x_eval), bool) if mask is None else np.asarray(mask, bool)
     t0 = time.perf_counter()
-    sel = select_h_model([x_fit], [y_fit], dt_fit, candidates=_candidates(quasi_static), trial_names=list(names),
-                         n_blocks=5, thin=max(1, len(x_fit) // 8000))
-    model = sel.model
+    model, table, warnings = select_external(x_fit, y_fit, dt_fit, _candidates(quasi_static), prehistory, names,
+                                             thin=max(1, len(x_fit) // 8000))
     lin = LinearH().fit(x_fit, y_fit, dt_fit)
     pi10 = PIBaseline(10).fit(x_fit, y_fit)
-    row = {"selected": model.label(), "selection": sel.table, "warnings": sel.warnings,
+    row = {"selected": model.label(), "selection": table, "warnings": warnings,
            "h_selected": errors_pct(model.predict(x_eval, dt_eval)[mask], y_eval[mask]),
            "linear": errors_pct(lin.predict(x_eval)[mask], y_eval[mask]),
            "baseline_pi10": errors_pct(pi10(x_eval)[mask], y_eval[mask]),
@@ -155,10 +318,11 @@ def run(data_dir: Path | None = None, sub_smart: int = 2, sub_danny: int = 2, so
     """Fit and evaluate every pair; returns a list of row dicts (errors in % of evaluation output range)."""
     data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
     rows = []
-    for key, label, xf, yf, dtf, xe, ye, mask, dte in _pairs(data_dir, sub_smart, sub_danny):
+    for key, label, xf, yf, dtf, xe, ye, mask, dte, pre in _pairs(data_dir, sub_smart, sub_danny):
         row = {"key": key, "pair": label, "n_fit": len(xf), "dt": dtf,
                "provenance_baseline": PROVENANCE_BASELINE.get(key, (float("nan"), float("nan")))}
-        row.update(fit_pair(xf, yf, dtf, xe, ye, dte, mask, quasi_static=key.startswith("slac"), names=[label]))
+        row.update(fit_pair(xf, yf, dtf, xe, ye, dte, mask, quasi_static=key.startswith("slac"), names=[label],
+                            prehistory=pre))
         rows.append(row)
     return rows
 
@@ -202,6 +366,19 @@ def _read_record(spec: str):
     return x, y, dt
 
 
+def _parse_prehistory(text):
+    """``"0,165,0"`` -> array of input values, or None."""
+    if text is None:
+        return None
+    try:
+        pre = np.array([float(v) for v in text.split(",") if v.strip()], float)
+    except ValueError:
+        pre = np.zeros(0)
+    if pre.size < 1 or not np.all(np.isfinite(pre)):
+        raise ValueError(f"--prehistory {text!r}: expected comma-separated finite input values, e.g. 0,165,0")
+    return pre
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="selfsense fit-external", allow_abbrev=False,
                                  description="Fit the H(q) model registry (selected by blocked CV) on one measured "
@@ -214,6 +391,11 @@ def main(argv=None) -> int:
                     help="fit record: CSV/Parquet file and its input, output and optional time columns")
     ap.add_argument("--eval", default=None, metavar="FILE:X:Y[:T]",
                     help="evaluation record (same form); default: the second half of the fit record")
+    ap.add_argument("--prehistory", default=None, metavar="X1,X2,...",
+                    help="input values [input units] the device went through before each of the two records, e.g. a "
+                         "standardisation cycle 0,165,0: every candidate starts from the state they leave")
+    ap.add_argument("--quasi-static", action="store_true",
+                    help="one sample per input step (a table of steps): no creep bank, stronger ridges")
     ap.add_argument("--solver", default="CLARABEL", help="cvxpy QP solver tried first by the modified PI candidate")
     args = ap.parse_args(argv)
     try:
@@ -231,7 +413,8 @@ def main(argv=None) -> int:
                 xf, yf = xf[:half], yf[:half]
                 label = f"{args.fit}: 1st half -> 2nd half"
             row = {"key": "user", "pair": label, "provenance_baseline": (float("nan"), float("nan"))}
-            row.update(fit_pair(xf, yf, dtf, xe, ye, dte, mask, names=[args.fit]))
+            row.update(fit_pair(xf, yf, dtf, xe, ye, dte, mask, quasi_static=args.quasi_static, names=[args.fit],
+                                prehistory=_parse_prehistory(args.prehistory)))
             rows = [row]
         else:
             data_dir = Path(args.data_dir) if args.data_dir is not None else default_data_dir()
@@ -242,7 +425,7 @@ def main(argv=None) -> int:
         print(f"selfsense fit-external: error: {exc}", file=__import__("sys").stderr)
         return 2
     md = ("Errors in % of the evaluation output range (RMS / max). The H model is chosen by blocked cross-validation on "
-          "the fit record only (selfsense.hysteresis.models.select).\n\n" + to_markdown(rows))
+          "the fit record only (selfsense.hysteresis.external.select_external).\n\n" + to_markdown(rows))
     print(md)
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

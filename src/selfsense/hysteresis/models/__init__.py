@@ -300,7 +300,7 @@ class PreisachH(LinearParamH):
     kind = "preisach"
 
     def __init__(self, n_grid: int = 12, n_play: int = 0, ridge: float = 1e-6, creep: bool = True,
-                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S):
+                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, nonneg: bool = False):
         super().__init__(ridge, creep, creep_tau_s)
         if int(n_grid) < 2:
             raise ValueError(f"PreisachH: n_grid must be >= 2, got {n_grid!r}")
@@ -308,9 +308,21 @@ class PreisachH(LinearParamH):
             raise ValueError(f"PreisachH: n_play must be >= 0, got {n_play!r}")
         self.n_grid = int(n_grid)
         self.n_play = int(n_play)
+        self.nonneg = bool(nonneg)
 
     def _params(self) -> dict:
-        return {"n_grid": self.n_grid, "n_play": self.n_play}
+        p = {"n_grid": self.n_grid, "n_play": self.n_play}
+        return {**p, "nonneg": True} if self.nonneg else p
+
+    def _bounds(self, n_cols: int):
+        """Non-negative Preisach density (cell and play weights) when ``nonneg``: every hysteron adds to the output
+        when it switches up, a counter-clockwise loop with rising branches (a magnet's B(I), a stack's x(V)); the
+        linear, creep, offset and extra columns stay free."""
+        if not self.nonneg:
+            return None
+        lo = np.full(n_cols, -np.inf)
+        lo[:self.n_grid * (self.n_grid + 1) // 2 + self.n_play] = 0.0
+        return lo
 
     def _basis(self, u, stride=1):
         """Grid cells plus, with ``n_play`` > 0, play operators (thresholds up to 0.5): a density concentrated
