@@ -87,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"selfsense: error: unknown command {cmd!r}\n\n{_usage()}", file=sys.stderr)
         return 2
     mod_name, fn_name, _ = SUBCOMMANDS[cmd]
+    from selfsense.determinism import single_thread_blas
+
+    single_thread_blas()  # results do not depend on the BLAS thread count (docs/reproducibility.md)
     try:
         module = importlib.import_module(mod_name)
         return int(getattr(module, fn_name)(rest) or 0)

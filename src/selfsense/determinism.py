@@ -13,11 +13,17 @@ AVX-512 (this project's machine) against the committed files (made without it; t
 bit for bit with ``NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL"``) gives at most 9 of 6,000 DAQ samples one ADC
 code apart, truth signals within 1.0e-7 of their range and effect columns within 6.7e-4 of their reference's
 range.
+
+* Thread counts: every pipeline job, Snakemake script and ``selfsense`` command runs its linear algebra on one BLAS
+  thread (:func:`single_thread_blas`), whatever ``OPENBLAS_NUM_THREADS`` / ``OMP_NUM_THREADS`` say: OpenBLAS
+  reductions round differently on one and on two threads, and the iterative H(q) fits carry that into the model.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +42,40 @@ TRUTH_RTOL = 1e-6
 EFFECT_RTOL = 5e-3
 #: JSON numbers (manifests, campaign records): relative tolerance; integers, strings, booleans and keys exact
 JSON_RTOL = 1e-9
+
+#: environment variables a BLAS / OpenMP library reads for its thread count when it is loaded
+THREAD_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS",
+                   "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+_PIN_LOCK = threading.Lock()
+
+
+def single_thread_blas() -> None:
+    """One thread for every BLAS / OpenMP library of this process, loaded now or later, from any Python thread.
+
+    Results depend on the BLAS thread count (measured on the bundled ``sample`` dataset: the calibrated
+    ``model/hysteresis.json`` differs in the last bits between ``OPENBLAS_NUM_THREADS=1`` and ``2``, and the
+    non-convex Duhem fit amplifies that to 1e-12 relative in its cross-validation scores). A process may hold
+    several OpenBLAS copies (NumPy's, SciPy's, SCS's), loaded at different times, so both are needed:
+
+    * the environment variables :data:`THREAD_ENV_VARS` set to 1, read by every library loaded from now on;
+    * ``threadpoolctl`` limits for the libraries already loaded. ``threadpoolctl`` (>= 3.6) applies an OpenBLAS
+      limit only from the one Python thread that first set one; a limit asked from another thread while that one
+      lives is silently ignored. Where that leaves a library above one thread, its own setter is called directly.
+
+    Idempotent and cheap; called by :class:`selfsense.stages.logged` (every ``run:`` and ``script:`` job) and by
+    the ``selfsense`` command.
+    """
+    with _PIN_LOCK:
+        for var in THREAD_ENV_VARS:
+            os.environ[var] = "1"
+        from threadpoolctl import ThreadpoolController
+
+        ctl = ThreadpoolController()
+        ctl.limit(limits=1)
+        for lib in ctl.lib_controllers:
+            if lib.get_num_threads() not in (None, 1):
+                setter = getattr(lib, "_real_set_num_threads", lib.set_num_threads)
+                setter(1)
 
 
 def compare_tree(got: Any, ref: Any, rtol: float = JSON_RTOL, atol: float = 0.0, path: str = "") -> list[str]:

@@ -455,6 +455,7 @@ class logged:
         self.exit_on_bad_input = exit_on_bad_input
 
     def __enter__(self):
+        _one_blas_thread()  # same thread count, so the same bits, in run: and script: jobs (docs/reproducibility.md)
         self._in_thread = threading.current_thread() is not threading.main_thread()
         self._startup = 0.0 if self._in_thread else _process_age_s()
         self._t0 = time.perf_counter()
@@ -507,20 +508,14 @@ _JOBS = {
 }
 
 
-_BLAS_LIMITED = False
-
-
 def _one_blas_thread() -> None:
     """Jobs of the Snakemake process run side by side in threads (one core each, ``threads: 1``); a multi-threaded
     BLAS in each of them would oversubscribe the cores (measured: ``Q.T @ Q`` of a 60,000 x 46 regressor matrix,
-    thesis eq. 65, takes 0.011 s on one OpenBLAS thread and 0.66 s on two while the other core is busy).
-    Script rules get the same limit from Snakemake's ``OPENBLAS_NUM_THREADS``."""
-    global _BLAS_LIMITED
-    if not _BLAS_LIMITED:
-        from threadpoolctl import threadpool_limits
+    thesis eq. 65, takes 0.011 s on one OpenBLAS thread and 0.66 s on two while the other core is busy), and the
+    results depend on the thread count: :func:`selfsense.determinism.single_thread_blas`."""
+    from selfsense.determinism import single_thread_blas
 
-        threadpool_limits(limits=1)
-        _BLAS_LIMITED = True
+    single_thread_blas()
 
 
 def run_job(name: str, input, output, params, wildcards, log) -> None:
