@@ -327,6 +327,52 @@ def run(data_dir: Path | None = None, sub_smart: int = 2, sub_danny: int = 2, so
     return rows
 
 
+def ri_smoothing_by_cv(x_fit, y_fit, x_eval, y_eval, prehistory, smooth_grid=(0.0, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4,
+                                                                                1e-3, 1e-2, 1e-1), n_blocks: int = 5):
+    """The one-sided RI model (002_7d89b7147aad52e4.txt eqs. 10-11, F (15), G (16); ``selfsense.hysteresis.ri``)
+    from the declared ``prehistory``, its smoothing weight chosen by the blocked CV folds of the selection on the fit
+    record only. Returns ``(smooth, cv fold-mean RMS [output units], (RMS %, max %) on the evaluation record)``."""
+    from .models.select import ROTATE_FOLDS, blocked_folds
+    from .ri import RIModel, solve_ls
+
+    xf, xe = np.maximum(np.asarray(x_fit, float), 0.0), np.maximum(np.asarray(x_eval, float), 0.0)
+    yf, ye = np.asarray(y_fit, float), np.asarray(y_eval, float)
+    pre = np.asarray(prehistory, float)
+    scale = float(max(np.max(pre), np.max(xf)))
+    ri = RIModel(input_scale=scale)
+    st = ri.state_after(pre)
+    Phi = ri.regressor(xf, st)
+    u_max = float(max(np.max(ri.scale_input(xf)), st.M_max))
+    folds = blocked_folds([len(xf)], n_blocks, rotate=ROTATE_FOLDS)
+    cv = [float(np.mean([np.sqrt(np.mean((Phi[h] @ solve_ls(Phi[~h], yf[~h], smooth=s, u_max=u_max) - yf[h]) ** 2))
+                         for h in folds])) for s in smooth_grid]
+    s = float(smooth_grid[int(np.argmin(cv))])
+    m = RIModel(input_scale=scale).fit(xf, yf, smooth=s, x_history=pre)
+    return s, float(min(cv)), errors_pct(m(xe, m.state_after(pre)), ye)
+
+
+def slac_checks(data_dir: Path | None = None) -> str:
+    """What each part of the selection does on the SLAC pairs (relaxed start or declared prehistory, signed only or
+    with the non-negative twins) and the RI model with its smoothing chosen by CV on the fit record: markdown."""
+    data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
+    out = ["| SLAC pair | variant | selected H | RMS / max % |", "|---|---|---|---|"]
+    for key, label, xf, yf, dtf, xe, ye, mask, dte, pre in _pairs(data_dir, 2, 2):
+        if not key.startswith("slac"):
+            continue
+        signed = tuple(c for c in _candidates(True) if not c[1].get("nonneg"))
+        for name, cands, p in (("relaxed start, signed only", signed, None),
+                               ("relaxed start, + non-negative twins", _candidates(True), None),
+                               ("prehistory, signed only", signed, pre),
+                               ("prehistory, + non-negative twins (default)", _candidates(True), pre)):
+            m, _, _ = select_external(xf, yf, dtf, cands, p, [label])
+            e = errors_pct(m.predict(xe, dte), ye)
+            out.append(f"| {label} | {name} | {m.label()} | {e[0]:.2f} / {e[1]:.2f} |")
+        s, cv, e = ri_smoothing_by_cv(xf, yf, xe, ye, pre)
+        out.append(f"| {label} | RI from prehistory, smooth = {s:g} by CV (fold RMS {cv:.3g}) | ri (eqs. 10-11) | "
+                   f"{e[0]:.2f} / {e[1]:.2f} |")
+    return "\n".join(out) + "\n"
+
+
 def to_markdown(rows) -> str:
     f = lambda p: f"{p[0]:.2f} / {p[1]:.2f}"  # noqa: E731
     out = ["| pair | selected H (blocked CV on the fit record) | selected: RMS / max | straight line | "
