@@ -660,10 +660,12 @@ def sensitivity_rows(case: Case, ev: Evaluator, base: Evaluation) -> list[dict]:
     Qr = float(np.ptp(df0["q"].to_numpy(float)[act])) or 1.0
     est0 = base.model.estimate(df0)
     # free-tip eq. (55) residual = H mismatch in V_p units: V_p_model - Q/(n_A C_p) is zero for a perfect H
+    from selfsense.sensing.core import h_target
+
     from .model import rig_params
 
     p = rig_params(case.rig)
-    h_err = (est0["V_p"].to_numpy(float) - df0["q"].to_numpy(float) / (p["n_A"] * p["C_p"]))[act]
+    h_err = h_target(est0["V_p"].to_numpy(float), df0["q"].to_numpy(float), 1.0 / (p["n_A"] * p["C_p"]))[act]
     h_rms = float(np.sqrt(np.mean((h_err - h_err.mean()) ** 2)))
     out = []
     for m, (kq, kv) in {"displacement": ("A1", "A2"), "force": ("B21", "B22")}.items():
@@ -688,6 +690,8 @@ def stage_budget_rows(case: Case, ev: Evaluator, base: Evaluation) -> list[dict]
     over all trials, instead of the calibration regression of eq. 52 rows on the same inputs). The coefficient
     block is always re-derived for the chosen inputs so every combination is self-consistent.
     """
+    from selfsense.sensing.core import piezo_voltage
+
     model = base.model
     truth = case.truth
     stages = ("charge", "hysteresis", "coefficients")
@@ -699,7 +703,7 @@ def stage_budget_rows(case: Case, ev: Evaluator, base: Evaluation) -> list[dict]
         if "hysteresis" in S:
             Vp = tr["V_p"].to_numpy(float)[:n]
         else:
-            Vp = df["V"].to_numpy(float)[:n] - model.hysteresis_(Q)
+            Vp = piezo_voltage(df["V"].to_numpy(float)[:n], model.hysteresis_(Q))   # thesis eq. (27)
         return np.column_stack([Q, Vp]), n
 
     def coefs(S):

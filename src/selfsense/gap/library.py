@@ -25,6 +25,8 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from selfsense.sensing.core import force_regressor, h_target, piezo_voltage
+
 from .model import fit_fast_pi, pi_design, rig_params, solve_signed_nnls, _play
 from .model import sup_thresholds as _sup_thresholds, thresholds as _thresholds
 from .protocol import _runs
@@ -226,6 +228,7 @@ class RegressorAug:
 
     def fit(self, trials, meta, estimator) -> None:
         p = rig_params(estimator.rig)
+        self._nA, self._Cp = p["n_A"], p["C_p"]
         self._cpt = p["n_A"] * p["C_p"]
         if self.needs_force_proxy:  # private free-tip H to form the force proxy s = Q - n_A C_p V_p (eq. 52 row 2)
             free = meta[meta["tip"] == "free"].index[0]
@@ -233,15 +236,14 @@ class RegressorAug:
             act = active(df)
             Q = _Q(df)[act]
             self._h, _ = fit_fast_pi(Q[:: max(1, len(Q) // 3000)],
-                                     (_V(df)[act] - Q / self._cpt)[:: max(1, len(Q) // 3000)], 8)
+                                     h_target(_V(df)[act], Q, 1.0 / self._cpt)[:: max(1, len(Q) // 3000)], 8)
             s = self._proxy(df)[act]
             self._ss = _scale(s)
             self._vs = _scale(_V(df)[act])
 
     def _proxy(self, df):
         Q = _Q(df)
-        Vp = _V(df) - self._h(Q)
-        return Q - self._cpt * Vp
+        return force_regressor(Q, piezo_voltage(_V(df), self._h(Q)), self._nA, self._Cp)   # eqs. (27), (52)
 
     def features(self, df: pd.DataFrame) -> pd.DataFrame:
         G = self.cols(self, df)

@@ -11,6 +11,10 @@ App. A (``000_18d138f03f1777c3.txt`` eqs. 60-80), so that a refit takes millisec
 * Sensing coefficients by joint least squares over the calibration trials (CALIBRATION_NOTES 1), thesis eq. (52):
   ``dx = A1 Q + A2 V_p (+ extra)``, ``f = (A3/n_A)(Q - n_A C_p V_p) (+ extra)``; ``regression="full"`` frees the
   force row (eq. 46).
+
+``000_18d138f03f1777c3.txt`` eqs. (27), (52) and (55) are evaluated by ``selfsense.sensing.core`` (the definitions
+the batch and streaming estimators use); only the H model and its fit are this module's own.
+
 Units: SI (C, V, m, N, s). No limiting / DC offset post-processing: the diagnostic studies the raw estimate.
 """
 from __future__ import annotations
@@ -21,6 +25,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 from scipy.optimize import nnls
+
+from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
+                                    tip_force)
 
 __all__ = ["FastPI", "fit_fast_pi", "FastSensingEstimator", "rig_params", "make_estimator"]
 
@@ -169,7 +176,7 @@ class FastSensingEstimator:
 
     def _regressors(self, df: pd.DataFrame) -> np.ndarray:
         Q = df["q"].to_numpy(float)
-        Vp = df["V"].to_numpy(float) - self.hysteresis_(Q)
+        Vp = piezo_voltage(df["V"].to_numpy(float), self.hysteresis_(Q))   # thesis eq. (27)
         cols = [Q, Vp]
         for a in self.augmentations:
             if hasattr(a, "features"):
@@ -194,7 +201,7 @@ class FastSensingEstimator:
         act = d["relay"].to_numpy() < 0.5
         sl = _decimate(int(act.sum()), self.max_fit_samples)
         Q = d["q"].to_numpy(float)[act][sl]
-        y = d["V"].to_numpy(float)[act][sl] - Q / (self.n_A_ * self.C_p_)
+        y = h_target(d["V"].to_numpy(float)[act][sl], Q, 1.0 / (self.n_A_ * self.C_p_))   # thesis eq. (55)
         self.hysteresis_, _ = fit_fast_pi(Q, y, self.n_play)
         Xd, yd, Xf, yf = [], [], [], []
         for tid, row in cal.to_dict("index").items():
@@ -216,9 +223,9 @@ class FastSensingEstimator:
         Xd, yd, Xf, yf = np.vstack(Xd), np.concatenate(yd), np.vstack(Xf), np.concatenate(yf)
         cd = _lstsq(Xd, yd)
         if self.regression == "approx":
-            z = Xf[:, 0] - self.n_A_ * self.C_p_ * Xf[:, 1]
+            z = force_regressor(Xf[:, 0], Xf[:, 1], self.n_A_, self.C_p_)   # thesis eq. (52), second row
             cf = _lstsq(np.column_stack([z, Xf[:, 2:]]), yf, n_phys=1)
-            B21, B22 = cf[0], -self.n_A_ * self.C_p_ * cf[0]
+            B21, B22 = force_coefficients(float(cf[0] * self.n_A_), self.n_A_, self.C_p_)
             cf = np.concatenate([[B21, B22], cf[1:]])
         else:
             cf = _lstsq(Xf, yf)
@@ -230,8 +237,11 @@ class FastSensingEstimator:
     def estimate(self, df: pd.DataFrame) -> pd.DataFrame:
         df = self._transform(df)
         X = self._regressors(df)
-        dx = X @ self.cd_
-        f = X @ self.cf_
+        dx = tip_displacement(X[:, 0], X[:, 1], self.cd_[0], self.cd_[1])   # thesis eq. (52)
+        f = tip_force(X[:, 0], X[:, 1], self.cf_[0], self.cf_[1])           # thesis eq. (46) / (52)
+        for j in range(2, X.shape[1]):  # augmentation columns, added as SelfSensingEstimator._predict_raw does
+            dx = dx + self.cd_[j] * X[:, j]
+            f = f + self.cf_[j] * X[:, j]
         relay = df["relay"].to_numpy() >= 0.5
         dx = np.where(relay, 0.0, dx)
         f = np.where(relay, 0.0, f)

@@ -42,6 +42,8 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
+from selfsense.sensing.core import shunt_current, trapezoid_increment
+
 __all__ = ["StageSignals", "stage_signals", "prepare_signals", "MEMBERS", "STAGES", "diagnose_stages",
            "stage_residuals", "GramCV"]
 
@@ -92,7 +94,7 @@ def stage_signals(trials: dict, meta: pd.DataFrame, rig) -> list[StageSignals]:
         dt = float(np.median(np.diff(t)))
         out.append(StageSignals(
             name=str(name), t=t - t[0], V=df["V"].to_numpy(float)[a:], Q=df["q"].to_numpy(float)[a:],
-            Vc=df["V_c"].to_numpy(float)[a:], i=df["V_s"].to_numpy(float)[a:] / R,
+            Vc=df["V_c"].to_numpy(float)[a:], i=shunt_current(df["V_s"].to_numpy(float)[a:], 0.0, R),
             dx=df["dx_ref"].to_numpy(float)[a:] if "dx_ref" in df else np.full(len(t), np.nan),
             f=df["f_ref"].to_numpy(float)[a:] if "f_ref" in df else np.full(len(t), np.nan),
             dt=dt, tip=str(m.get("tip", "")), reference=str(m.get("reference", "")), role=str(m.get("role", "")),
@@ -137,7 +139,8 @@ def _plays(x: np.ndarray, radii, z0=None) -> np.ndarray:
 
 
 def _cumint(x: np.ndarray, dt: float) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * dt)])
+    """``int_0^t x dtau``, the trapezoidal rule of the charge integral (thesis eq. 57, ``selfsense.sensing.core``)."""
+    return np.concatenate([[0.0], np.cumsum(trapezoid_increment(x[:-1], x[1:], dt))])
 
 
 # --------------------------------------------------------------------------------------------------- members

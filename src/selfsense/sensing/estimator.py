@@ -36,7 +36,8 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import pandas as pd
 
-from selfsense.sensing.core import force_coefficients, h_target, piezo_voltage, tip_displacement, tip_force
+from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
+                                    tip_force)
 from selfsense.signals import limit_to_range, sliding_dc_offset
 
 log = logging.getLogger(__name__)
@@ -704,7 +705,7 @@ class SelfSensingEstimator:
         self.fit_report_["regression_form"] = regression
         if regression == "approx":
             # f = (A3 / n_A) (Q - n_A C_p V_p) + extra   (eq. 52): one physical coefficient A3
-            zf = Xf[:, 0] - n_A * C_p * Xf[:, 1]
+            zf = force_regressor(Xf[:, 0], Xf[:, 1], n_A, C_p)
             Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
             cf = _lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)

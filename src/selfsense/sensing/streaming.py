@@ -19,6 +19,8 @@ loop per sample:
    ``selfsense.hysteresis._kernels.gamma_kernel`` (state: play states, creep states, previous input), and the
    estimator's gauge (``GaugedH``: ``sign``, ``c``; 1 and 0 for a bare ``ModifiedPI``).
 4. ``V_p = V - V_H`` (eq. 27); ``dx_raw = A1 Q + A2 V_p``, ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted.
+   Steps 2 and 4 call the scalar kernels of ``selfsense.sensing.core`` (inlined), the definitions the batch
+   estimator and ``charge_from_shunt`` evaluate on arrays.
 5. Post-processing (thesis sec. 5.2, Fig. 24): sliding DC offset on dx (and on f if configured) that resets to the
    current value whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to the calibrated ranges.
 
@@ -33,6 +35,8 @@ from typing import Any, Mapping
 
 import numpy as np
 from numba import njit
+
+from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
 __all__ = ["SelfSensingStream", "StreamError"]
 
@@ -91,7 +95,8 @@ def _views(P, S):
 def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use_t):
     """Charge update, eq. (57), scalars only and strict IEEE arithmetic (no fast-math), so that the running sum
     is bit-identical to ``np.cumsum`` of the increments ``0.5 * (i_k + i_{k-1}) * (t_k - t_{k-1})`` in
-    ``selfsense.signals.charge_from_shunt``. Returns (status, q, csum, base, t_last)."""
+    ``selfsense.signals.charge_from_shunt``: both evaluate ``selfsense.sensing.core._shunt_current`` and
+    ``_trapezoid_increment``. Returns (status, q, csum, base, t_last)."""
     inc = 0.0
     if nseen > 0.0:
         if use_t:
@@ -101,7 +106,7 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
         else:
             h = dt
         if not shorted:
-            inc = 0.5 * ((Vs - off) / R + (vs_last - off) / R) * h
+            inc = _trapezoid_increment(_shunt_current(vs_last, off, R), _shunt_current(Vs, off, R), h)
     csum = csum + inc
     if shorted:
         base = csum
@@ -183,14 +188,14 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
     g = _gamma_step(P, S, q, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c)
     # gauge of SelfSensingEstimator (GaugedH): H(Q) = sign * (G[Q] - c Q); sign = 1, c = 0 for a bare operator
     VH = P[_P_HSIGN] * (g - P[_P_HC] * q)
-    # --- eq. (27) and eq. (52)
-    Vp = V - VH
+    # --- eq. (27) and eq. (52): the kernels of selfsense.sensing.core, as the batch estimator evaluates them
+    Vp = _piezo_voltage(V, VH)
     if shorted:
         dxr = 0.0
         fr = 0.0
     else:
-        dxr = P[_P_A1] * q + P[_P_A2] * Vp
-        fr = P[_P_B21] * q + P[_P_B22] * Vp
+        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2])
+        fr = _tip_linear(q, Vp, P[_P_B21], P[_P_B22])
     # --- sliding DC offset (Fig. 24) and limiting (sec. 5.2)
     dx = dxr
     f = fr

@@ -93,9 +93,12 @@ def charge_from_shunt(t, V_s, relay, R: float, offset: str | float | None = "rel
         off = float(offset)
     if t.size == 0:
         return np.zeros(0), off
-    i = (V_s - off) / R  # current [A]
+    # the integrand and the trapezoidal increment: the definitions the streaming integrator inlines too
+    from selfsense.sensing.core import shunt_current, trapezoid_increment
+
+    i = shunt_current(V_s, off, R)  # current [A]
     inc = np.zeros_like(t)
-    inc[1:] = 0.5 * (i[1:] + i[:-1]) * np.diff(t)
+    inc[1:] = trapezoid_increment(i[:-1], i[1:], np.diff(t))
     inc[shorted] = 0.0
     c = np.cumsum(inc)
     idx = np.arange(t.size)
