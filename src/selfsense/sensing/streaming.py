@@ -54,7 +54,8 @@ _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- parameter vector layout (float64) ----------------------------------------------------------------------
 (_P_R, _P_INAMP, _P_GAIN, _P_A1, _P_A2, _P_B21, _P_B22, _P_ZL, _P_DXLO, _P_DXHI, _P_FLO, _P_FHI, _P_DCDX,
  _P_DCF, _P_LIMIT, _P_B, _P_W0, _P_NH, _P_NC, _P_NP, _P_NN, _P_HSIGN, _P_HC) = range(23)
-_NP_FIXED = 23
+_P_DX0 = 23   # rest closing dx0 [m] of the displacement row (SelfSensingEstimator._rest_offset)
+_NP_FIXED = 24
 
 # status codes returned by the kernels
 _OK = 0
@@ -194,7 +195,7 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
         dxr = 0.0
         fr = 0.0
     else:
-        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2])
+        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2]) + P[_P_DX0]
         fr = _tip_linear(q, Vp, P[_P_B21], P[_P_B22])
     # --- sliding DC offset (Fig. 24) and limiting (sec. 5.2)
     dx = dxr
@@ -310,7 +311,7 @@ def _pack(model, sc: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
     for key, idx in (("R", _P_R), ("inamp", _P_INAMP), ("gain", _P_GAIN), ("A1", _P_A1), ("A2", _P_A2),
                      ("B21", _P_B21), ("B22", _P_B22), ("zl", _P_ZL), ("dxlo", _P_DXLO), ("dxhi", _P_DXHI),
                      ("flo", _P_FLO), ("fhi", _P_FHI), ("dcdx", _P_DCDX), ("dcf", _P_DCF), ("limit", _P_LIMIT),
-                     ("hsign", _P_HSIGN), ("hc", _P_HC)):
+                     ("hsign", _P_HSIGN), ("hc", _P_HC), ("dx0", _P_DX0)):
         head[idx] = float(sc.get(key, 1.0 if key in ("R", "inamp", "hsign") else 0.0))
     head[_P_B] = m.offset
     head[_P_W0] = s0
@@ -374,7 +375,7 @@ class SelfSensingStream:
         self.offset_arg = offset
         sc = {
             "R": _rig_value(rig, "shunt_resistance_ohm"), "inamp": _rig_value(rig, "inamp_gain"), "gain": gain,
-            "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"],
+            "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "dx0": float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
             "zl": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
             "dxlo": estimator.ranges_["dx"][0], "dxhi": estimator.ranges_["dx"][1],
