@@ -76,6 +76,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "h_selected": str(hrep.get("selected", hrep.get("h_model", ""))),
         "h_fit_rms_v": float(hrep.get("rms_v", float("nan"))),
         "rest_offset": bool(est.fit_report_.get("rest_offset", {}).get("applied", False)),
+        "regression": str(est.fit_report_.get("regression_form", "")),
         "warnings": list(est.fit_report_.get("warnings", [])),
     })
     return rec

@@ -154,3 +154,15 @@ def test_pzt_to_tip_sensitivity_linear_and_consistent():
     assert np.allclose(s2["d_f_tip"], [M[1, 1] + 1e-6 * M[1, 0], -2 * M[1, 1]])
     # a 1 V error at the PZT moves f_tip by tens of percent of the 0.1 N range
     assert 0.2 < abs(s["f_per_V"]) * 1.0 / 0.1 < 1.0
+
+
+def test_force_row_is_eq46_and_reduces_to_eq52_without_tip_stiffness():
+    """force_row gives the exact (B21, B22) of eq. (46) (f = S3 x_pzt + S2 dx_tip on every environment) and, with
+    S2 = 0, the eq. (52) pair (A3 / n_A, -C_p A3)."""
+    dev = default_tweezer_mechanics()
+    c = dev.a_coefficients()
+    B21, B22 = piezo.force_row(c["A1"], c["A2"], c["A3"], dev.S2, dev.n_A, dev.Cp)
+    M = dev.tip_matrix("thesis")
+    assert B21 == pytest.approx(M[1, 0], rel=1e-12) and B22 == pytest.approx(M[1, 1], rel=1e-12)
+    assert piezo.force_row(c["A1"], c["A2"], c["A3"], 0.0, dev.n_A, dev.Cp) == pytest.approx(
+        (c["A3"] / dev.n_A, -dev.Cp * c["A3"]), rel=1e-12)

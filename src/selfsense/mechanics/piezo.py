@@ -121,6 +121,13 @@ def tip_matrix_closed_form(S1, S2, S3, alpha, Cp, k, n_A) -> np.ndarray:
     ], dtype=float)
 
 
+def force_row(A1: float, A2: float, A3: float, S2: float, n_A: float, Cp: float) -> tuple[float, float]:
+    """(B21, B22) of the unapproximated force row of thesis eq. (46): ``B21 = S2 A1 + A3 / n_A``,
+    ``B22 = S2 A2 - Cp A3`` with ``A3 = S3 / alpha`` (eq. 53). That is ``f = S3 x_pzt + S2 dx_tip``: the
+    eq. (52) force plus the tip port's own stiffness ``S2`` [N/m] times the displacement row; eq. (52) is ``S2 = 0``."""
+    return S2 * A1 + A3 / n_A, S2 * A2 - Cp * A3
+
+
 def a_coefficients(S1, S2, S3, alpha, Cp, k, n_A) -> dict:
     """Thesis eqs. (46)-(48), (53) (thesis sign convention of the force row).
 
@@ -131,8 +138,7 @@ def a_coefficients(S1, S2, S3, alpha, Cp, k, n_A) -> dict:
     A1 = (-n_A * k - S1) / (n_A * S3 * alpha)
     A2 = (n_A * Cp * k + Cp * S1 + n_A * alpha ** 2) / (S3 * alpha)
     A3 = S3 / alpha
-    B21 = S2 * A1 + S3 / (n_A * alpha)
-    B22 = S2 * A2 - Cp * S3 / alpha
+    B21, B22 = force_row(A1, A2, A3, S2, n_A, Cp)
     return dict(A1=A1, A2=A2, A3=A3, B21=B21, B22=B22)
 
 

@@ -201,7 +201,9 @@ def _model_section(results_dir: Path) -> list[str]:
                        "approximation).</p>")
     meaning = {"A1": "tip displacement per total charge", "A2": "tip displacement per piezo voltage",
                "A3": "tip force per actuator charge (thesis eq. 52)", "B21": "tip force per total charge",
-               "B22": "tip force per piezo voltage", "h_slope": "slope of the free-tip H(q) target (1 / (n_A C_p))"}
+               "B22": "tip force per piezo voltage",
+               "dx0": "tip closing at rest (rest offset: remanent charge the integrator never saw; 0 if not adopted)",
+               "S2": "tip-port stiffness of the two-port force row (regression: twoport)", "h_slope": "slope of the free-tip H(q) target (1 / (n_A C_p))"}
     rows = []
     for k, v in d.get("coef", {}).items():
         if isinstance(v, dict):

@@ -33,6 +33,8 @@ COEFFICIENTS: dict[str, str] = {
     "A3": "N/C",
     "B21": "N/C",
     "B22": "N/V",
+    "dx0": "m",
+    "S2": "N/m",
     "h_slope": "V/C",
 }
 

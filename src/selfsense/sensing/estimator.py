@@ -39,6 +39,7 @@ import pandas as pd
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
 from selfsense.signals import limit_to_range, sliding_dc_offset
+from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ __all__ = [
 H_MODES = ("thesis", "onsite")
 H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
-REGRESSIONS = ("auto", "approx", "full")
+REGRESSIONS = ("auto", "approx", "twoport", "full")
 
 
 class CalibrationError(ValueError):
@@ -327,6 +328,17 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
         X, y = X[keep], y[keep]
     w = ridge_lstsq(X, y, pen, model.ridge)
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
+
+
+def _lstsq_bounded(A: np.ndarray, y: np.ndarray, lower_at: int) -> np.ndarray:
+    """Least squares with column ``lower_at`` >= 0 (column-scaled; scipy's bounded trust-region solver)."""
+    from scipy.optimize import lsq_linear
+
+    s = np.sqrt(np.mean(A ** 2, axis=0))
+    s[~(s > 0)] = 1.0
+    lo = np.full(A.shape[1], -np.inf)
+    lo[lower_at] = 0.0
+    return lsq_linear(A / s, y, bounds=(lo, np.inf), method="bvls").x / s
 
 
 def _rest_offset(Xs: list, ys: list, n_blocks: int = 5) -> tuple[bool, dict]:
@@ -733,6 +745,8 @@ class SelfSensingEstimator:
         else:
             cd = _lstsq(Xd, yd)
         regression = cfg.regression
+        zf = force_regressor(Xf[:, 0], Xf[:, 1], n_A, C_p)
+        Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
         if regression == "auto":
             # thesis mode: eq. (52) is exact for the force row in the eq. (55) convention (free-tip V_p is linear in
             # q); on-site mode: paper sec. IV-B regresses the four free terms (A1, A2, S2A1 + S3/n_A alpha, ...).
@@ -740,13 +754,20 @@ class SelfSensingEstimator:
         self.fit_report_["regression_form"] = regression
         if regression == "approx":
             # f = (A3 / n_A) (Q - n_A C_p V_p) + extra   (eq. 52): one physical coefficient A3
-            zf = force_regressor(Xf[:, 0], Xf[:, 1], n_A, C_p)
-            Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
             cf = _lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)
             B21, B22 = force_coefficients(A3, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22}
             extra_f = cf[1:]
+        elif regression == "twoport":
+            # f = (A3 / n_A) (Q - n_A C_p V_p) + S2 dx + extra (eq. 46 = S3 x_pzt + S2 dx_tip), S2 >= 0 (a passive
+            # tip port, eq. 8): the tip-stiffness column is the displacement row (A1 Q + A2 V_p) on the force rows
+            dxf = tip_displacement(Xf[:, 0], Xf[:, 1], float(cd[0]), float(cd[1]))
+            cf = _lstsq_bounded(np.column_stack([zf, dxf, Xf[:, 2:]]), yf, lower_at=1)
+            A3, S2 = float(cf[0] * n_A), float(cf[1])
+            B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
+            self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
+            extra_f = cf[2:]
         else:
             cf = _lstsq(Xf, yf)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
