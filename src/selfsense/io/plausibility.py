@@ -213,8 +213,10 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
     # integrate over the first connected stretch only (the charge restarts at every re-short)
     a = first_rel
     b = int(next((s for s, _ in later), n))
-    tt, vs = t[a:b], V_s[a:b] - off
-    q = np.concatenate(([0.0], np.cumsum(0.5 * (vs[1:] + vs[:-1]) * np.diff(tt)))) / rig.shunt_resistance_ohm
+    from selfsense.sensing.core import shunt_current, trapezoid_increment   # eq. (57), written once
+
+    tt, i_s = t[a:b], shunt_current(V_s[a:b], off, rig.shunt_resistance_ohm)
+    q = np.concatenate(([0.0], np.cumsum(trapezoid_increment(i_s[:-1], i_s[1:], np.diff(tt)))))
     V = (V_c - V_s)[a:b]
     C = rig.n_actuators * rig.actuator_catalog.capacitance_f
     ptp_V = float(np.ptp(V)) if V.size else 0.0
