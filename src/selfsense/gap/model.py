@@ -259,10 +259,10 @@ def make_estimator(kind: str, rig: Any, augmentations: Sequence = (), **kw):
     if kind in ("sensing", "sensing_ri"):
         from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
-        # the thesis' identification (H on the free-tip trial(s) only, no drift compensation): the estimators the
-        # committed gap campaign and its null thresholds were made with
+        # the thesis' identification (H on the free-tip trial(s) only, no drift compensation, no rest offset): the
+        # estimators the committed gap campaign and its null thresholds were made with
         kw = {"h_model": "ri" if kind == "sensing_ri" else "modified_pi", "h_identification": "thesis",
-              "drift": "off", **kw}
+              "drift": "off", "rest_offset": "off", **kw}
         cfg = SensingConfig(limit=False, dc_offset=False, **kw)
         return SelfSensingEstimator(config=cfg, rig=rig, augmentations=tuple(augmentations))
     raise ValueError(f"estimator kind: expected 'fast', 'sensing' or 'sensing_ri', found {kind!r}")
