@@ -199,11 +199,16 @@ def _model_section(results_dir: Path) -> list[str]:
                      + " (thesis eq. (52): dx_tip = A1 Q + A2 V_p, f_tip = B21 Q + B22 V_p, with the total charge Q "
                        "[C] and the piezo voltage V_p = V - H(q) [V]; B21 = A3 / n_A, B22 = -C_p A3 in the thesis' "
                        "approximation).</p>")
+        rest = d.get("fit_report", {}).get("rest_offset") or {}
+        if rest.get("note"):
+            parts.append(f"<p>Rest offset dx0 (a tip that rests open or closed: remanent charge the integrator never "
+                         f"saw): {html.escape(str(rest['note']))}.</p>")
     meaning = {"A1": "tip displacement per total charge", "A2": "tip displacement per piezo voltage",
                "A3": "tip force per actuator charge (thesis eq. 52)", "B21": "tip force per total charge",
                "B22": "tip force per piezo voltage",
                "dx0": "tip closing at rest (rest offset: remanent charge the integrator never saw; 0 if not adopted)",
-               "S2": "tip-port stiffness of the two-port force row (regression: twoport)", "h_slope": "slope of the free-tip H(q) target (1 / (n_A C_p))"}
+               "S2": "tip-port stiffness of the two-port force row (regression: twoport)",
+               "h_slope": "slope of the free-tip H(q) target (1 / (n_A C_p))"}
     rows = []
     for k, v in d.get("coef", {}).items():
         if isinstance(v, dict):
