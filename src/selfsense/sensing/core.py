@@ -58,9 +58,11 @@ def _h_target(v, q, slope):
 
 
 @njit(inline="always")
-def _tip_linear(q, vp, a, b):
-    """``a Q + b V_p`` (thesis eq. 52 / eq. 46, one row): displacement with (A1, A2), force with (B21, B22)."""
-    return a * q + b * vp
+def _tip_linear(q, vp, a, b, c):
+    """``a Q + b V_p + c`` (thesis eq. 52 / eq. 46, one row): displacement with (A1, A2) and the rest closing
+    ``c = dx0`` (0 unless the estimator adopted it: eq. 52 on the total charge ``Q + q_0``), force with (B21, B22)
+    and ``c = 0``."""
+    return a * q + b * vp + c
 
 
 @njit(inline="always")
@@ -95,15 +97,16 @@ def h_target(V, Q, slope: float) -> np.ndarray:
     return _h_target.py_func(_f(V), _f(Q), slope)
 
 
-def tip_displacement(Q, V_p, A1: float, A2: float) -> np.ndarray:
-    """Tip closing [m], thesis eq. (52) first row: ``dx = A1 (n_A q) + A2 V_p`` with ``n_A q = Q`` the total charge."""
-    return _tip_linear.py_func(_f(Q), _f(V_p), A1, A2)
+def tip_displacement(Q, V_p, A1: float, A2: float, dx0: float = 0.0) -> np.ndarray:
+    """Tip closing [m], thesis eq. (52) first row: ``dx = A1 (n_A q) + A2 V_p + dx0`` with ``n_A q = Q`` the total
+    charge and ``dx0`` the rest closing (``A1 q_0``: remanent charge the integrator never saw)."""
+    return _tip_linear.py_func(_f(Q), _f(V_p), A1, A2, dx0)
 
 
 def tip_force(Q, V_p, B21: float, B22: float) -> np.ndarray:
     """Tip force [N], thesis eq. (46) second row ``f = B21 Q + B22 V_p``; eq. (52) is the special case
     ``B21 = A3 / n_A``, ``B22 = -C_p A3`` (:func:`force_coefficients`)."""
-    return _tip_linear.py_func(_f(Q), _f(V_p), B21, B22)
+    return _tip_linear.py_func(_f(Q), _f(V_p), B21, B22, 0.0)
 
 
 def force_regressor(Q, V_p, n_A: float, C_p: float) -> np.ndarray:

@@ -825,7 +825,7 @@ class SelfSensingEstimator:
     def _predict_raw(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = self.coef_
         # thesis eq. (52) on the total charge Q + q_0: the rest closing dx0 = A1 q_0 (0 unless adopted, _rest_offset)
-        dx = tip_displacement(X[:, 0], X[:, 1], c["A1"], c["A2"]) + c.get("dx0", 0.0)
+        dx = tip_displacement(X[:, 0], X[:, 1], c["A1"], c["A2"], c.get("dx0", 0.0))
         f = tip_force(X[:, 0], X[:, 1], c["B21"], c["B22"])          # thesis eq. (46) / (52)
         for j, v in enumerate(c.get("extra_dx", {}).values()):
             dx = dx + v * X[:, 2 + j]

@@ -195,8 +195,8 @@ def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn
         dxr = 0.0
         fr = 0.0
     else:
-        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2]) + P[_P_DX0]
-        fr = _tip_linear(q, Vp, P[_P_B21], P[_P_B22])
+        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2], P[_P_DX0])
+        fr = _tip_linear(q, Vp, P[_P_B21], P[_P_B22], 0.0)
     # --- sliding DC offset (Fig. 24) and limiting (sec. 5.2)
     dx = dxr
     f = fr
