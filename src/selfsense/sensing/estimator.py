@@ -36,10 +36,11 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 import pandas as pd
 
+from selfsense.hysteresis.models import ridge_lstsq
+from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
 from selfsense.signals import limit_to_range, sliding_dc_offset
-from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 
 log = logging.getLogger(__name__)
 
@@ -328,17 +329,6 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
         X, y = X[keep], y[keep]
     w = ridge_lstsq(X, y, pen, model.ridge)
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
-
-
-def _lstsq_bounded(A: np.ndarray, y: np.ndarray, lower_at: int) -> np.ndarray:
-    """Least squares with column ``lower_at`` >= 0 (column-scaled; scipy's bounded trust-region solver)."""
-    from scipy.optimize import lsq_linear
-
-    s = np.sqrt(np.mean(A ** 2, axis=0))
-    s[~(s > 0)] = 1.0
-    lo = np.full(A.shape[1], -np.inf)
-    lo[lower_at] = 0.0
-    return lsq_linear(A / s, y, bounds=(lo, np.inf), method="bvls").x / s
 
 
 def _rest_offset(Xs: list, ys: list, n_blocks: int = 5) -> tuple[bool, dict]:
@@ -763,7 +753,10 @@ class SelfSensingEstimator:
             # f = (A3 / n_A) (Q - n_A C_p V_p) + S2 dx + extra (eq. 46 = S3 x_pzt + S2 dx_tip), S2 >= 0 (a passive
             # tip port, eq. 8): the tip-stiffness column is the displacement row (A1 Q + A2 V_p) on the force rows
             dxf = tip_displacement(Xf[:, 0], Xf[:, 1], float(cd[0]), float(cd[1]))
-            cf = _lstsq_bounded(np.column_stack([zf, dxf, Xf[:, 2:]]), yf, lower_at=1)
+            Tf = np.column_stack([zf, dxf, Xf[:, 2:]])
+            lower = np.full(Tf.shape[1], -np.inf)
+            lower[1] = 0.0
+            cf = ridge_lstsq(Tf, yf, np.zeros(Tf.shape[1], bool), 0.0, lower=lower)   # bounded, column-scaled
             A3, S2 = float(cf[0] * n_A), float(cf[1])
             B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
