@@ -141,6 +141,7 @@ class PrehistoryH:
             raise ValueError(f"prehistory: expected finite input values, got {prehistory!r}")
         self.inner, self.prehistory = inner, pre
         self.kind, self.ridge, self.convex = inner.kind, inner.ridge, True
+        self.linear_in_parameters = True   # cross-validated like its inner model (select.cv_candidate)
         self.nonneg = bool(getattr(inner, "nonneg", False))
         self.coef_, self.extra_coef_ = None, np.zeros(0)
 
@@ -236,7 +237,6 @@ def select_external(x, y, dt: float, candidates, prehistory=None, names=("fit re
     table, models = [], []
     for kind, params in candidates:
         model = make_model(kind, **params)
-        status = "ok"
         if prehistory is not None and not isinstance(model, LinearParamH):
             # a model fitted from the relaxed state only cannot honour the declared initial state: not offered
             table.append({"kind": kind, "params": dict(params), "label": model.label(),
@@ -245,22 +245,11 @@ def select_external(x, y, dt: float, candidates, prehistory=None, names=("fit re
                           "selected": False, "class": _constraint_class(model)})
             models.append(model)
             continue
-        try:
-            if prehistory is not None:
-                model = PrehistoryH(model, prehistory)
-            if isinstance(model, (LinearParamH, PrehistoryH)):
-                rms = S._cv_linear(model, [x], [y], dt, None, folds, thin)
-            elif getattr(model, "joint_extra", False):
-                rms = S._cv_masked(model, [x], [y], dt, None, n_blocks, S.ROTATE_FOLDS, thin * k)
-            elif k == 1:
-                rms = S._cv_qp(model, [x], [y], dt, None, folds, np.ones(1, bool), thin)
-            else:
-                raise ValueError(f"records of {len(x)} samples: the QP candidate is fitted on up to 200000 samples")
-        except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
-            rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
-        table.append({"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
-                      "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
-                      "status": status, "selected": False, "class": _constraint_class(model)})
+        if prehistory is not None:
+            model = PrehistoryH(model, prehistory)
+        row = S.cv_candidate(model, kind, params, [x], [y], dt, None, np.ones(1, bool), folds, n_blocks,
+                             S.ROTATE_FOLDS, thin)
+        table.append({**row, "class": _constraint_class(model)})
         models.append(model)
     ok = [i for i, r in enumerate(table) if np.isfinite(r["cv_rms_mean_v"])]
     if not ok:

@@ -166,6 +166,31 @@ def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin):
     return rms
 
 
+def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, folds, n_blocks: int, rotate: bool,
+                 thin: int) -> dict:
+    """One row of the selection table: the blocked-CV fold RMS of ``model`` (made from ``kind``, ``params``) on the
+    segments, by the fit its class needs (linear least squares, the masked joint fit, or the QP on the first
+    free-tip segment); a candidate that cannot be fitted is out of the race and its status says why."""
+    lengths = [len(q) for q in qs]
+    k = fit_stride(lengths)
+    try:
+        if isinstance(model, LinearParamH) or getattr(model, "linear_in_parameters", False):
+            rms = _cv_linear(model, qs, ys, dt, extras, folds, thin)
+        elif getattr(model, "joint_extra", False):
+            rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k)
+        elif k == 1:
+            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin)
+        else:
+            raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
+                             f"200000 samples only")
+        status = "ok"
+    except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
+        rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+    return {"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
+            "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
+            "status": status, "selected": False}
+
+
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
                    rotate_folds: bool | None = None) -> SelectionResult:
@@ -183,26 +208,8 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     E = _stack_extra(extras, lengths)
     rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
-    table = []
-    for kind, params in candidates:
-        model = make_model(kind, **params)
-        try:
-            if isinstance(model, LinearParamH):
-                rms = _cv_linear(model, qs, ys, dt, extras, folds, thin)
-            elif getattr(model, "joint_extra", False):
-                rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k)
-            elif k == 1:
-                rms = _cv_qp(model, qs, ys, dt, E, folds, free, thin)
-            else:
-                raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
-                                 f"200000 samples only")
-            status = "ok"
-        except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
-            rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
-        table.append({"kind": kind, "params": dict(params), "label": model.label(),
-                      "cv_rms_v": [float(r) for r in rms],
-                      "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
-                      "status": status, "selected": False})
+    table = [cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
+                          rotate, thin) for kind, params in candidates]
     ok = [r for r in table if np.isfinite(r["cv_rms_mean_v"])]
     if not ok:
         raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
