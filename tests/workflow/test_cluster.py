@@ -20,11 +20,9 @@ import warnings
 from pathlib import Path
 
 import pytest
-import yaml
 
-ROOT = Path(__file__).resolve().parents[2]
-RAW = Path(os.environ.get("SELFSENSE_TEST_RAW_DIR", ROOT / "data" / "raw"))
-DATASET = "sample"
+from smk_workdir import DATASET, RAW, ROOT, snakemake_cmd, workdir
+
 START = ROOT / "cluster" / "start_local_slurm.sh"
 STOP = ROOT / "cluster" / "stop_local_slurm.sh"
 STATE = Path(os.environ.get("SELFSENSE_SLURM_STATE", "/tmp/selfsense-slurm"))
@@ -88,23 +86,8 @@ def engine(request):
             "started": False}
 
 
-def _workdir(path: Path, gap: bool = False) -> Path:
-    path.mkdir(parents=True, exist_ok=True)
-    cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
-    cfg["datasets"] = [DATASET]
-    cfg["raw_dir"] = str(RAW)
-    cfg["results_dir"] = "results"
-    cfg.setdefault("gap", {})["enabled"] = bool(gap)
-    (path / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    (path / "cluster").symlink_to(ROOT / "cluster")  # profiles name the fake-scheduler scripts relatively
-    return path
-
-
 def _snakemake(workdir: Path, targets: list[str], extra: list[str]) -> subprocess.Popen:
-    env = dict(os.environ, MPLBACKEND="Agg")
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    cmd = [sys.executable, "-m", "snakemake", *targets, "--snakefile", str(ROOT / "Snakefile"),
-           "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"), *extra]
+    cmd, env = snakemake_cmd(workdir, targets, extra)
     _say(" ".join(cmd))
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                             cwd=workdir)
@@ -133,8 +116,8 @@ def _hashes(results: Path) -> dict[str, str]:
 def runs(engine, tmp_path_factory, request):
     if not (RAW / DATASET / "trials.csv").exists():
         pytest.fail(f"{RAW / DATASET} is missing: the bundled sample dataset must be committed")
-    local = _workdir(tmp_path_factory.mktemp("local"))
-    remote = _workdir(tmp_path_factory.mktemp(engine["kind"]))
+    local = workdir(tmp_path_factory.mktemp("local"))
+    remote = workdir(tmp_path_factory.mktemp(engine["kind"]))
     gap = _gap_campaign_start(engine, tmp_path_factory)
     if "proc" in gap:  # never leave the campaign running (before the engine's finalizer stops the daemons)
         request.addfinalizer(lambda: gap["proc"].poll() is None and (gap["proc"].kill(), gap["proc"].wait()))
@@ -237,11 +220,7 @@ def _gap_campaign_start(engine, tmp_path_factory) -> dict:
     if rule is None:
         return {"skip": "NOTE: workflow/rules/gap.smk has no 'gap_benchmark' rule, so no gap campaign was run "
                         "through the cluster (the smoke pipeline was)"}
-    wd = _workdir(tmp_path_factory.mktemp("gap_" + engine["kind"]))
-    cfg = yaml.safe_load((wd / "config.yaml").read_text())
-    cfg.setdefault("gap", {})
-    cfg["gap"] = dict(cfg["gap"] or {}, benchmark={"n": 2, "seed": 1, "tier": "fast"})
-    (wd / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    wd = workdir(tmp_path_factory.mktemp("gap_" + engine["kind"]), gap={"benchmark": {"n": 2, "seed": 1, "tier": "fast"}})
     dry = _snakemake(wd, [rule], ["-n", "--cores", "1"])
     out, _ = dry.communicate(timeout=300)
     if dry.returncode != 0:

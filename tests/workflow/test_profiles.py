@@ -9,34 +9,21 @@ checkpoint), and the workflow refuses any other cluster run that groups jobs whi
 """
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[2]
-RAW = Path(os.environ.get("SELFSENSE_TEST_RAW_DIR", ROOT / "data" / "raw"))
+from smk_workdir import ROOT, snakemake_cmd, workdir
+
 PROFILES = sorted((ROOT / "workflow" / "profiles").glob("*/config.yaml"))
 GROUPABLE = {"gap_scenario"}
 
 
-def _snakemake(workdir: Path, targets: list[str], args: list[str]) -> subprocess.CompletedProcess:
-    workdir.mkdir(parents=True, exist_ok=True)
-    cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
-    cfg.update(datasets=["sample"], raw_dir=str(RAW), results_dir="results")
-    cfg.setdefault("gap", {})
-    cfg["gap"] = dict(cfg["gap"] or {}, enabled=False, benchmark={"n": 2, "seed": 1, "tier": "fast"})
-    (workdir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    if not (workdir / "cluster").exists():
-        (workdir / "cluster").symlink_to(ROOT / "cluster")  # the cluster-generic profile names its scripts relatively
-    env = dict(os.environ, MPLBACKEND="Agg")
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    cmd = [sys.executable, "-m", "snakemake", *targets, "--snakefile", str(ROOT / "Snakefile"), "--directory", str(workdir),
-           "--configfile", str(workdir / "config.yaml"), *args]
-    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=workdir, timeout=300)
+def _snakemake(wd: Path, targets: list[str], args: list[str]) -> subprocess.CompletedProcess:
+    cmd, env = snakemake_cmd(workdir(wd, gap={"benchmark": {"n": 2, "seed": 1, "tier": "fast"}}), targets, args)
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=wd, timeout=300)
 
 
 def _groups(profile: Path) -> dict[str, str]:
