@@ -331,18 +331,18 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
 
 
-def _rest_offset(Xs: list, ys: list, n_blocks: int = 5) -> tuple[bool, dict]:
+def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5) -> tuple[bool, dict]:
     """Whether the displacement row gets a constant ``dx0`` [m], the tip's closing at rest.
 
     A remanent polarisation leaves charge on the actuators that the charge integrator, started at the relay, never
     saw (thesis 000_18d138f03f1777c3.txt eq. 57 integrates from the known initial state): eq. (52) then holds for
     the total charge ``Q + q_0``, i.e. ``dx = A1 Q + A2 V_p + A1 q_0``, a tip that rests open or closed. Adopted when
     it lowers the blocked cross-validated RMS of the displacement rows (fold i holds out the i-th of ``n_blocks``
-    contiguous blocks of every calibration trial, as the H selection does) by more than 2 %."""
+    contiguous blocks of every calibration trial, as the H selection does) by more than 2 %. ``X``, ``y``: the
+    stacked displacement rows, ``lengths``: the rows of each calibration segment in stacking order."""
     from selfsense.hysteresis.models.select import blocked_folds
 
-    held = blocked_folds([len(y) for y in ys], n_blocks, rotate=False)
-    X, y = np.vstack(Xs), np.concatenate(ys)
+    held = blocked_folds(lengths, n_blocks, rotate=False)
 
     def cv(A):
         err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
@@ -723,9 +723,10 @@ class SelfSensingEstimator:
             raise CalibrationError(
                 "trials.csv: the A-coefficient regression needs at least one calibration trial with reference "
                 "'displacement' and one with reference 'force' (thesis: free tip + laser, blocked tip + load cell)")
-        rest_ok, rest_info = (_rest_offset(Xd, yd) if cfg.rest_offset == "auto"
-                              else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
+        lengths_d = [len(v) for v in yd]
         Xd, yd = np.vstack(Xd), np.concatenate(yd)
+        rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if cfg.rest_offset == "auto"
+                              else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
         Xf, yf = np.vstack(Xf), np.concatenate(yf)
         names = ["Q", "V_p"] + self._extra_names
         dx0 = 0.0
