@@ -20,7 +20,6 @@ import warnings
 from pathlib import Path
 
 import pytest
-
 from smk_workdir import DATASET, RAW, ROOT, snakemake_cmd, workdir
 
 START = ROOT / "cluster" / "start_local_slurm.sh"
