@@ -47,7 +47,8 @@ rule ingest:
 
 rule calibrate_hysteresis:
     input:
-        signals=per_trial("signals", calibration_trials),
+        # every trial: the charge link's reference-free hold evidence reads V, Q and the relay of all of them
+        signals=per_trial("signals", all_trials),
     output:
         res("{dataset}", "model", "hysteresis.json"),
         res("{dataset}", "model", "h_selection.csv"),

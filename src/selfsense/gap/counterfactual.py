@@ -15,6 +15,13 @@ A correction acts where the stage says the effect acts:
   nominal charge response gives the measured charge);
 * load-stage members: ``f^ <- f^ + c col`` (and the same taken out of the calibration references).
 
+Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset
+drift, :mod:`selfsense.chain.charge`) are not corrected with the stage's coefficients: the estimator is recalibrated
+with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
+member, identified jointly with H(q) and the sensing coefficients. A member the fitted estimator already carries
+(adopted for Table 3) shrinks nothing further; its contribution to Table 3 is the chain refitted without it
+(:func:`chain_contributions`).
+
 The estimator is then recalibrated on the corrected calibration trials and scored on the corrected validation
 trials (thesis Table 3 style: mean |error| in % of the reference range per trial, then per measurement), for no
 effect, each effect alone and all of them; exact Shapley values over the confirmed effects; a paired block
@@ -29,7 +36,10 @@ import pandas as pd
 
 from .stages import MEMBERS
 
-__all__ = ["CORRECTION_KIND", "corrections", "tip_table", "counterfactual"]
+__all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "counterfactual", "chain_contributions"]
+
+#: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
+CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -41,11 +51,16 @@ CORRECTION_KIND = {
 N_BLOCKS = 6
 
 
-def corrections(verdict: dict) -> dict:
-    """effect -> trial -> {"q"|"V"|"dx"|"f": additive correction over the samples after the relay release}."""
+def corrections(verdict: dict, chain: bool = False) -> dict:
+    """effect -> trial -> {"q"|"V"|"dx"|"f": additive correction over the samples after the relay release}.
+    ``chain``: the estimator carries the :data:`CHAIN_MEMBERS` (they get no data correction: it is recalibrated
+    with the member on instead)."""
     sigs, ctx = verdict["_signals"], verdict["_context"]
     out = {}
     for e in verdict["effects"]:
+        if chain and e["effect"] in CHAIN_MEMBERS:  # carried by the estimator's chain: recalibrated with the member on
+            out[e["effect"]] = {}
+            continue
         acc = [x for x in sorted(e["acceptances"], key=lambda x: -x["score"]) if x["member"] in CORRECTION_KIND]
         if not acc:  # named from a stage without a correction (the relay-short trend): no tip change predicted
             out[e["effect"]] = {}
@@ -113,12 +128,29 @@ def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> 
     return new, outc
 
 
+def _make(make_estimator: Callable, rig, members: dict | None = None):
+    est = make_estimator(rig)
+    if members:
+        if not hasattr(est, "members"):
+            raise TypeError(f"{type(est).__name__} carries no chain members; cannot force {sorted(members)}")
+        est.members = dict(members)
+    return est
+
+
+def adopted_members(fitted) -> dict:
+    """member -> whether the fitted estimator carries it (the Table 3 configuration)."""
+    if fitted is None or not hasattr(fitted, "members"):
+        return {}
+    return {"leakage": bool(getattr(fitted, "leakage_s_", 0.0)), "offset_drift": bool(getattr(fitted, "offset_drift_",
+                                                                                              False))}
+
+
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
-              estimator=None):
+              estimator=None, members: dict | None = None):
     """Per validation trial: thesis Table 3's error (mean |estimate - reference| in % of the trial's reference
     range, every finite sample, :func:`selfsense.report.tables.trial_errors`) and the same per contiguous block
     (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted)."""
-    est = estimator if estimator is not None else make_estimator(rig).fit(trials, meta)
+    est = estimator if estimator is not None else _make(make_estimator, rig, members).fit(trials, meta)
     rows = {}
     for t, m in meta.iterrows():
         if m["role"] != "validation":
@@ -158,12 +190,19 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
 
     from .stats import shapley_exact
 
-    corr = corrections(verdict)
+    can_force = hasattr(fitted if fitted is not None else make_estimator(rig), "members")
+    corr = corrections(verdict, chain=can_force)
     names = [e["effect"] for e in verdict["effects"]][:max_effects]
     tabs: dict = {}
+    carried = adopted_members(fitted)
+
+    def chain_of(S) -> dict:  # chain members switched on by S (only those the fitted estimator does not carry yet)
+        if not can_force:
+            return {}
+        return {CHAIN_MEMBERS[n]: "on" for n in S if n in CHAIN_MEMBERS and not carried.get(CHAIN_MEMBERS[n])}
 
     def inputs_touched(S) -> bool:  # a correction of Q or V changes the calibration: the estimator is refitted
-        return any(k in ("q", "V") for n in S for per in corr[n].values() for k in per)
+        return bool(chain_of(S)) or any(k in ("q", "V") for n in S for per in corr[n].values() for k in per)
 
     def table(S: frozenset):
         if S not in tabs:
@@ -172,7 +211,8 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
             # estimator costs tens of seconds), which ignores the small change of its coefficients
             reuse = fitted is not None and (not S or (not refit_outputs and not inputs_touched(S)))
-            tabs[S] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None)
+            tabs[S] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None,
+                                members=chain_of(S))
         return tabs[S]
 
     base = table(frozenset())
@@ -197,6 +237,10 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         after = tabs[frozenset([n])]
         res["effects"][n] = {"after": _summary(after), "shrink": res["before"]["mean"] - _summary(after)["mean"],
                              "shrink_interval_90": interval(after)}
+        if n in CHAIN_MEMBERS:
+            res["effects"][n]["how"] = ("carried by the estimate (adopted for Table 3): nothing further to shrink"
+                                        if carried.get(CHAIN_MEMBERS[n]) else
+                                        "the estimator recalibrated with the chain member forced on")
     allS = frozenset(names)
     res["after_all"] = _summary(tabs[allS])
     res["shrink_all"] = res["before"]["mean"] - res["after_all"]["mean"]
@@ -204,3 +248,28 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     if len(names) <= 3:
         res["shapley"] = shapley_exact(names, lambda S: res["before"]["mean"] - _summary(table(S))["mean"])
     return res
+
+
+def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, fitted) -> dict:
+    """Before / after each charge-link member the fitted estimator carries: Table 3 of the chain refitted with that
+    member forced off against Table 3 (the fitted chain), and with all carried members off. Members not carried are
+    listed with the reason the calibration gave (``fit_report_``)."""
+    carried = adopted_members(fitted)
+    if not carried:
+        return {}
+    base = _summary(tip_table(trials, meta, rig, make_estimator, estimator=fitted))
+    drift = fitted.fit_report_.get("hysteresis", {}).get("drift", {})
+    out = {"table3": base, "members": {}}
+    on = [m for m, a in carried.items() if a]
+    for m, a in carried.items():
+        row = {"adopted": a, "source": drift.get("source" if m == "leakage" else "offset_drift_source", "none")}
+        if a:
+            without = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off"}))
+            row.update({"without": without, "contribution": without["mean"] - base["mean"]})
+        out["members"][m] = row
+    if len(on) > 1:
+        none = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off" for m in on}))
+        out["without_all"] = none
+        out["contribution_all"] = none["mean"] - base["mean"]
+    out["note"] = drift.get("note", "")
+    return out

@@ -57,7 +57,7 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
                      seed: int = 0, n_boot: int = 200, refit_outputs: bool = True) -> dict:
     """Stage verdict + tip counterfactual of one dataset in memory (JSON-able dict)."""
     from .blind import load_stage_thresholds
-    from .counterfactual import counterfactual
+    from .counterfactual import chain_contributions, counterfactual
     from .protocol import excitation_check, proposal
 
     from .stages import diagnose_stages
@@ -69,6 +69,9 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
     v = {k: x for k, x in v.items() if not k.startswith("_")}
     v["thresholds"] = thr
     v["tip"] = cf
+    if fitted is not None and hasattr(fitted, "members"):
+        # the estimator's own chain members: Table 3 with and without each (the same chain the counterfactual forces)
+        v["chain"] = chain_contributions(trials, meta, rig, make_estimator, fitted)
     v["candidates"] = why_not(v)
     try:
         ex = excitation_check(trials, meta)
@@ -90,7 +93,12 @@ def message(v: dict) -> str:
         parts.append(f"The largest gap is in the {e['stage']} stage: {e['effect']} (held-out gain {e['gain']:.3f}, "
                      f"{e['score']:.1f}x its null threshold"
                      + (f", {e['grid_value']} {e['unit']}" if e.get("grid_value") is not None else "") + ").")
-        if te:
+        if te and te.get("how"):
+            lo, hi = te["shrink_interval_90"]
+            parts.append(f"It is a member of the estimator's charge link; {te['how']}: the tip error changes by "
+                         f"{te['shrink']:+.2f} points of range (90 % interval {lo:+.2f} to {hi:+.2f}; positive = "
+                         "smaller error).")
+        elif te:
             lo, hi = te["shrink_interval_90"]
             parts.append(f"Corrected with its stage-fitted coefficients fixed, the tip error changes by "
                          f"{te['shrink']:+.2f} points of range (90 % interval {lo:+.2f} to {hi:+.2f}; positive = "
@@ -103,6 +111,11 @@ def message(v: dict) -> str:
                          + ".")
     else:
         parts.append("No library effect beat its null threshold in any stage.")
+    ch = v.get("chain") or {}
+    for m, r in (ch.get("members") or {}).items():
+        if r.get("adopted"):
+            parts.append(f"The estimate carries the charge link's {m.replace('_', ' ')} (from the {r['source']}): "
+                         f"without it Table 3's mean would change by {r['contribution']:+.2f} points.")
     if v["unexplained"]:
         parts.append("Unexplained structure remains in the " + ", ".join(v["unexplained"])
                      + " stage(s): the generic model-error model gains beyond every library member there (an effect "
@@ -140,8 +153,27 @@ def _tables(v: dict) -> dict[str, pd.DataFrame]:
             row[f"after {n}"] = te["after"].get(meas, np.nan)
         row["after all"] = tip["after_all"].get(meas, np.nan)
         sh_rows.append(row)
+    ch_rows = []
+    ch = v.get("chain") or {}
+    for m, r in (ch.get("members") or {}).items():
+        row = {"member": m, "adopted": bool(r["adopted"]), "source": r.get("source", "")}
+        for meas in ("displacement", "force", "mean"):
+            row[f"table3_{meas}"] = ch["table3"].get(meas, np.nan)
+            row[f"without_{meas}"] = (r.get("without") or {}).get(meas, np.nan)
+        row["contribution_points"] = r.get("contribution", np.nan)
+        ch_rows.append(row)
+    if ch.get("without_all"):
+        row = {"member": "all carried", "adopted": True, "source": ""}
+        for meas in ("displacement", "force", "mean"):
+            row[f"table3_{meas}"] = ch["table3"].get(meas, np.nan)
+            row[f"without_{meas}"] = ch["without_all"].get(meas, np.nan)
+        row["contribution_points"] = ch.get("contribution_all", np.nan)
+        ch_rows.append(row)
     return {"stages": pd.DataFrame(st_rows), "effects": pd.DataFrame(ef_rows), "shrink": pd.DataFrame(sh_rows),
-            "candidates": pd.DataFrame(v["candidates"])}
+            "candidates": pd.DataFrame(v["candidates"]),
+            "chain": pd.DataFrame(ch_rows, columns=["member", "adopted", "source", "table3_displacement",
+                                                    "without_displacement", "table3_force", "without_force",
+                                                    "table3_mean", "without_mean", "contribution_points"])}
 
 
 def _figure(v: dict, path: Path) -> None:

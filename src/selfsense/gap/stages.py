@@ -163,7 +163,10 @@ class Member:
 
 
 def _c_leak(s, ctx, g):
-    return _cumint(s.V, s.dt)[:, None]
+    # the estimator's own leakage member (one definition for the chain and the diagnostic)
+    from selfsense.chain.charge import leak_column
+
+    return leak_column(s.V, s.dt)[:, None]
 
 
 def _c_offset(s, ctx, g):

@@ -315,8 +315,28 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
             parts.append("<ul>" + "".join(
                 f"<li><code>{html.escape(n)}</code>: {te['shrink']:+.2f} points of range "
                 f"({te['shrink_interval_90'][0]:+.2f} to {te['shrink_interval_90'][1]:+.2f}); after it "
-                f"{_pct(te['after'].get('displacement'))} / {_pct(te['after'].get('force'))}</li>"
+                f"{_pct(te['after'].get('displacement'))} / {_pct(te['after'].get('force'))}"
+                + (f" ({html.escape(te['how'])})" if te.get("how") else "") + "</li>"
                 for n, te in eff.items()) + "</ul>")
+        ch = vd.get("chain") or {}
+        if ch.get("members"):
+            rows = []
+            for m, r in ch["members"].items():
+                if r.get("adopted"):
+                    w = r.get("without") or {}
+                    rows.append(f"<tr><td>{html.escape(m.replace('_', ' '))}</td><td>adopted (from the "
+                                f"{html.escape(str(r.get('source')))})</td><td>{_pct(w.get('displacement'))} / "
+                                f"{_pct(w.get('force'))}</td><td>{r.get('contribution', float('nan')):+.2f}</td></tr>")
+                else:
+                    rows.append(f"<tr><td>{html.escape(m.replace('_', ' '))}</td><td>not adopted</td><td>"
+                                "</td><td></td></tr>")
+            parts.append("<p><b>The estimator's own chain members</b> (the charge link: the same leakage and offset "
+                         "models the diagnostic tests). Table 3 is computed with the adopted members; each row gives "
+                         "Table 3 of the chain recalibrated without that member (displacement / force) and the "
+                         "change of their mean in points (positive = the member lowers the error). Why a member was "
+                         "or was not adopted is in the calibration section above.</p><table><tr><th>member</th>"
+                         "<th>decision</th><th>Table 3 without it</th><th>its contribution</th></tr>"
+                         + "".join(rows) + "</table>")
         cands = [c for c in vd.get("candidates", []) if not c.get("accepted")]
         cands.sort(key=lambda c: -(c["gain_alone"] / c["threshold"]) if c.get("threshold") else 0.0)
         if cands:

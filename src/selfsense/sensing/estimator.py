@@ -378,6 +378,10 @@ class SelfSensingEstimator:
     config: SensingConfig = field(default_factory=SensingConfig)
     rig: Any = None
     augmentations: tuple = ()
+    #: charge-link members forced on or off (:mod:`selfsense.chain.charge`): ``{"leakage": "auto"|"on"|"off",
+    #: "offset_drift": "auto"|"on"|"off"}``; "auto" (the default) lets the calibration data and the reference-free
+    #: hold evidence decide (``drift: auto``); the gap diagnostic forces a member to score the chain with it
+    members: Mapping[str, str] = field(default_factory=dict)
 
     # fitted
     hysteresis_: Any = field(default=None, init=False, repr=False)
@@ -389,6 +393,7 @@ class SelfSensingEstimator:
     calibration_trials_: list = field(default_factory=list, init=False)
     leakage_s_: float = field(default=0.0, init=False)
     offset_drift_: bool = field(default=False, init=False)
+    hold_evidence_: dict = field(default_factory=dict, init=False)
     _extra_names: list = field(default_factory=list, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
@@ -418,6 +423,12 @@ class SelfSensingEstimator:
         if missing:
             raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
         self.calibration_trials_ = list(cal.index)
+        # reference-free evidence of the charge link from EVERY trial given (V, Q and the relay only: no reference
+        # of a validation trial is read), before any calibration-only transform
+        from selfsense.chain.charge import hold_evidence
+
+        self.hold_evidence_ = hold_evidence(
+            {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}).to_dict()
         cal_trials = {t: trials[t] for t in cal.index}
 
         for aug in self.augmentations:
@@ -527,8 +538,13 @@ class SelfSensingEstimator:
         """Leakage conductance g [S] of the actuator set and whether to compensate offset drift, from the calibration
         trials: g in 0..50 nS is the value for which a reference Preisach model (12 x 12 grid + 6 plays + creep, with
         the per-trial drift columns) fits the joint calibration rows best on the corrected charge ``Q - g int V dt``
-        (bounded scalar search of the least-squares residual). Each compensation is applied only if it lowers the
-        blocked-CV error of that model by >= 2 % (else the data do not support it; reported)."""
+        (bounded scalar search of the least-squares residual). Leakage is applied when the calibration rows support
+        it (blocked-CV error not higher, leave-one-block-out estimates within 50 %) or when the reference-free holds
+        of every trial do (:func:`selfsense.chain.charge.hold_evidence`, then with the hold-estimated g, provided the
+        calibration rows' blocked-CV error grows by at most 2 %); the offset-drift columns when they lower that error
+        by more than 1 %, or the holds show per-trial offset rates and the columns cost at most 2 %. ``members``
+        forces either on or off. Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
+        """
         from scipy.optimize import minimize_scalar
 
         from selfsense.hysteresis.models import PreisachH, fit_stride
@@ -553,32 +569,80 @@ class SelfSensingEstimator:
                                   options={"xatol": 0.05e-9})
             return float(res.x)
 
-        g = search()
+        modes = self._member_modes()
+        ev = self.hold_evidence_ or {}
+        g_cal = search()
         n_rows = [len(q) for q in rows(0.0)[0]]
         g_folds = [search(drop) for drop in blocked_folds(n_rows, 3)]
-        base, best = cv(0.0, True), cv(g, True)
-        info = {"leakage_s": g, "leakage_s_folds": g_folds, "cv_rms_v_without": base, "cv_rms_v_with": best}
+        base = cv(0.0, True)
+        best_cal = cv(g_cal, True)
+        info = {"leakage_s_calibration": g_cal, "leakage_s_folds": g_folds, "cv_rms_v_without": base,
+                "cv_rms_v_with_calibration_g": best_cal, "hold_evidence": ev, "leakage_mode": modes["leakage"],
+                "offset_drift_mode": modes["offset_drift"]}
         notes = []
-        # supported when it does not worsen the blocked CV and the leave-one-block-out estimates agree within 50 %
-        stable = g > 0.1e-9 and all(abs(x - g) <= 0.5 * g for x in g_folds)
-        if not (best <= base and stable):
-            notes.append("leakage compensation not supported by the calibration data (blocked-CV error not lower, or "
-                         "the leave-one-block-out estimates of g disagree by > 50 %): not applied")
-            info["applied"] = False
-            g, best = 0.0, base
+        # supported by the calibration rows when it does not worsen their blocked CV and the leave-one-block-out
+        # estimates agree within 50 %
+        cal_ok = bool(g_cal > 0.1e-9 and best_cal <= base and all(abs(x - g_cal) <= 0.5 * g_cal for x in g_folds))
+        # supported by the holds of every trial (reference-free, selfsense.chain.charge.hold_evidence) when the
+        # calibration rows are not made worse by more than 2 % with the hold-estimated conductance
+        g_hold = float(ev.get("g_s") or 0.0)
+        best_hold = cv(g_hold, True) if ev.get("supported") else float("inf")
+        info["cv_rms_v_with_hold_g"] = best_hold if np.isfinite(best_hold) else None
+        hold_ok = bool(ev.get("supported") and best_hold <= 1.02 * base)
+        g, best, source = 0.0, base, "none"
+        if modes["leakage"] == "off":
+            notes.append("leakage compensation off (forced)")
+        elif hold_ok or cal_ok or modes["leakage"] == "on":
+            # the supported estimates (both when forced on) compete on the calibration rows' blocked CV
+            cands = [(best_hold, 0, g_hold, "holds")] if (hold_ok or (modes["leakage"] == "on" and ev.get("supported"))) \
+                else []
+            if cal_ok or modes["leakage"] == "on":
+                cands.append((best_cal, 1, g_cal, "calibration"))
+            best, _, g, source = min(cands)
         else:
-            info["applied"] = True
-        # in-amp offset drift: per-trial a t + b t^2 charge columns in the H fit, and each trial's own rest segments
-        # (rest_drift) -- only if the columns lower the blocked-CV error by >= 2 %
+            why = ["calibration rows: blocked-CV error not lower with g, or the leave-one-block-out estimates of g "
+                   "disagree by > 50 %"]
+            if ev.get("note"):
+                why.append("holds of all trials: " + ev["note"])
+            if ev.get("supported") and not hold_ok:
+                why.append(f"the hold-estimated g makes the calibration rows' blocked-CV error worse by > 2 % "
+                           f"({best_hold:.4g} V against {base:.4g} V)")
+            notes.append("leakage compensation not supported (" + "; ".join(why) + "): not applied")
+        info.update({"leakage_s": g, "applied": source != "none", "source": source, "cv_rms_v_with": best})
+        if modes["leakage"] == "on" and source != "none":
+            notes.append(f"leakage compensation forced on (g from the {source})")
+        # in-amp offset drift: per-trial t^2 charge columns in the H fit, and each trial's own rest segments
+        # (rest_drift) -- applied if the columns lower the calibration rows' blocked-CV error by more than 1 %, or if
+        # the holds of all trials show per-trial offset rates (F test, p < 0.001) and the columns do not make the
+        # calibration rows worse by more than 2 %
         without_cols = cv(g, False)
         info["offset_drift_cv_rms_v_without"] = without_cols
-        info["offset_drift_applied"] = bool(best < 0.99 * without_cols)
-        if not info["offset_drift_applied"]:
-            notes.append("offset-drift compensation not supported by the calibration data (blocked-CV gain < 1 %): "
-                         "not applied")
+        cal_gain = bool(best < 0.99 * without_cols)
+        hold_gain = bool(ev.get("offset_supported") and best <= 1.02 * without_cols)
+        applied = {"off": False, "on": True}.get(modes["offset_drift"], cal_gain or hold_gain)
+        info["offset_drift_applied"] = bool(applied)
+        info["offset_drift_source"] = ("forced" if modes["offset_drift"] != "auto" else
+                                       "calibration" if cal_gain else "holds" if hold_gain else "none")
+        if not applied:
+            notes.append("offset-drift compensation not supported (calibration blocked-CV gain < 1 % and no "
+                         "per-trial offset rate in the holds"
+                         + (", forced off" if modes["offset_drift"] == "off" else "") + "): not applied")
         if notes:
             info["note"] = "; ".join(notes)
         return g, info
+
+    def _member_modes(self) -> dict:
+        """The charge-link members' modes: ``members`` forced values over ``drift`` (auto | off)."""
+        out = {}
+        for k in ("leakage", "offset_drift"):
+            m = str(self.members.get(k, "auto"))
+            if m not in ("auto", "on", "off"):
+                raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
+            out[k] = m
+        unknown = sorted(set(self.members) - set(out))
+        if unknown:
+            raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift")
+        return out
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -590,7 +654,7 @@ class SelfSensingEstimator:
         self.leakage_s_ = 0.0
         drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
         self.offset_drift_ = False
-        if cfg.drift == "auto":
+        if cfg.drift == "auto" or any(m != "auto" for m in self._member_modes().values()):
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
             self.offset_drift_ = bool(drift_info["offset_drift_applied"])
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
@@ -874,11 +938,12 @@ class SelfSensingEstimator:
             "calibration_trials": self.calibration_trials_,
             "leakage_s": self.leakage_s_,
             "offset_drift": self.offset_drift_,
+            "members": dict(self.members),
         }
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], rig: Any) -> "SelfSensingEstimator":
-        est = cls(config=SensingConfig(**d["config"]), rig=rig)
+        est = cls(config=SensingConfig(**d["config"]), rig=rig, members=dict(d.get("members", {})))
         est.hysteresis_ = _h_from_dict(d["hysteresis"]) if d.get("hysteresis") else None
         est.h_slope_ = float(d["h_slope"])
         est.onsite_ = dict(d.get("onsite", {}))

@@ -1,0 +1,260 @@
+"""The charge link of the stage chain: V_s -> Q (thesis ``000_18d138f03f1777c3.txt`` eq. 57) and its members.
+
+The shunt integrates every current that flows into the actuator node, not only the one that polarises the
+actuators. Two members of this link are carried by the estimator (:class:`selfsense.sensing.SelfSensingEstimator`)
+and tested by the gap diagnostic (:mod:`selfsense.gap.stages`) through the *same* functions of this module:
+
+* **leakage**: a parallel conductance g [S] (the insulation of the actuator set): the shunt also carries ``g V``, so
+  the actuators' charge is ``Q - g int V dt`` (:func:`leak_column`);
+* **offset drift**: an in-amp input offset that drifts after the relay opened integrates into the charge as
+  ``a t + b t^2`` (the estimator estimates each trial's own from its rests).
+
+Reference-free evidence (:func:`hold_evidence`). During a hold of the drive (V constant within its noise) the
+actuators' charge is constant whatever the tip does (free, blocked or in contact: the force is constant too),
+except for the relaxation of the material after the preceding step (electrical creep, dielectric absorption),
+which decays. A charge ramp that persists through the hold and scales with the held voltage is leakage; one that
+does not scale with V is the offset drift of that trial. Every trial has holds to offer (mixed drives, the 0 V
+rests, the relay short), validation trials included: only V, Q and the relay are read, never a reference, so
+nothing Table 3 scores is fitted on its own reference.
+
+Per hold window h (the hold after its first 30 %, at least 0.2 s, so that the fast part of the relaxation is gone)
+the charge slope s_h [A] is regressed on
+
+    s_h = g V_h + a_k + b_k t_h + sum_j c_j r_j,h
+
+with a_k, b_k the offset-drift charge rate of trial k (its offset voltage over the shunt resistance, linear in
+time), and r_j,h the mean rate of a first-order relaxation of V with time constant tau_j (the decaying creep /
+absorption current after the steps before the hold). Holds are weighted by their duration. The uncertainty of g is
+that of the weighted regression; the evidence is "supported" when g > 0 with g / se >= :data:`Z_SUPPORT` over at
+least two trials and two hold levels, the median of the leave-one-trial-out estimates agrees with g within 50 %,
+and g moves by at most 25 % (or one standard error) when a slower relaxation (:data:`SLOW_TAU_S`) joins the
+regression (over holds short against a relaxation, its current cannot be told from a leakage current).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["leak_column", "find_holds", "hold_evidence", "HoldEvidence", "Z_SUPPORT", "RELAX_TAUS_S"]
+
+#: z-score of the hold-estimated leakage conductance above which the holds support the member
+Z_SUPPORT = 4.0
+#: relaxation time constants [s] of the creep / absorption columns of the hold regression
+RELAX_TAUS_S = (0.3, 1.0, 3.0)
+#: the slower relaxation added for the identifiability check: g must not depend on it
+SLOW_TAU_S = 10.0
+#: shortest hold [s] used as evidence
+MIN_HOLD_S = 0.5
+
+
+def leak_column(V: np.ndarray, dt: float) -> np.ndarray:
+    """``int_0^t V dtau`` [V s] by the trapezoidal rule of the charge integral (thesis eq. 57): the charge a
+    leakage conductance g draws through the shunt is ``g * leak_column(V, dt)``."""
+    from selfsense.sensing.core import trapezoid_increment
+
+    V = np.asarray(V, float)
+    if len(V) == 0:
+        return np.zeros(0)
+    return np.concatenate([[0.0], np.cumsum(trapezoid_increment(V[:-1], V[1:], dt))])
+
+
+def _lowpass(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    from scipy.signal import lfilter
+
+    x = np.asarray(x, float)
+    if len(x) == 0:
+        return np.zeros(0)
+    a = float(np.exp(-dt / tau))
+    return lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])[0]  # starts settled at x[0]
+
+
+def find_holds(t: np.ndarray, V: np.ndarray, min_s: float = MIN_HOLD_S) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` where V stays within a band of ``max(0.5 % of its range, 4 noise sd, 20 mV)``
+    for at least ``min_s`` seconds (drive holds and rests)."""
+    t = np.asarray(t, float)
+    V = np.asarray(V, float)
+    n = len(V)
+    if n < 10:
+        return []
+    dt = float(np.median(np.diff(t)))
+    noise = 1.4826 * float(np.median(np.abs(np.diff(V) - np.median(np.diff(V))))) / np.sqrt(2.0)
+    tol = max(0.005 * float(np.ptp(V)), 4.0 * noise, 0.02)
+    w = max(2, int(round(0.05 / dt)))
+    # stationary where the 50 ms change is inside the band
+    d = np.abs(V[w:] - V[:-w]) < tol
+    st = np.zeros(n, bool)
+    st[:-w] |= d
+    st[w:] &= d
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], st.astype(int), [0]])))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        if (b - a) * dt < min_s:
+            continue
+        seg = V[a:b]
+        if np.ptp(seg) > 4.0 * tol:  # a slow ramp, not a hold
+            continue
+        out.append((int(a), int(b)))
+    return out
+
+
+@dataclass
+class HoldEvidence:
+    """Leakage and offset-drift evidence of the holds of every trial (reference-free)."""
+
+    n_holds: int = 0
+    n_trials: int = 0
+    n_levels: int = 0
+    g_s: float = 0.0
+    g_se_s: float = float("inf")
+    z: float = 0.0
+    g_loto_s: list = field(default_factory=list)
+    g_slow_s: float = float("nan")
+    longest_hold_s: float = 0.0
+    offset_f: float = 0.0
+    offset_supported: bool = False
+    supported: bool = False
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k in ("g_se_s", "g_slow_s"):
+            d[k] = float(d[k]) if np.isfinite(d[k]) else None
+        return d
+
+
+def _hold_rows(name: str, k: int, t: np.ndarray, V: np.ndarray, Q: np.ndarray) -> list[dict]:
+    dt = float(np.median(np.diff(t)))
+    lps = [_lowpass(V, tau, dt) for tau in RELAX_TAUS_S + (SLOW_TAU_S,)]
+    rows = []
+    for a, b in find_holds(t, V):
+        a2 = a + max(int(0.3 * (b - a)), int(round(0.2 / dt)))
+        if b - a2 < 20:
+            continue
+        tt = t[a2:b] - t[a2]
+        dur = float(tt[-1])
+        if dur <= 0:
+            continue
+        A = np.column_stack([np.ones_like(tt), tt])
+        s = float(np.linalg.lstsq(A, Q[a2:b], rcond=None)[0][1])
+        relax = [float((lp[b - 1] - lp[a2]) / dur) for lp in lps]
+        rows.append({"trial": name, "k": k, "s": s, "V": float(np.mean(V[a2:b])), "t": float(np.mean(t[a2:b])),
+                     "w": dur, "relax": relax})
+    return rows
+
+
+def _design(rows: list[dict], trials: list[int], offset: bool, slow: bool = False
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    idx = {k: i for i, k in enumerate(trials)}
+    nk = len(trials)
+    X, y, w = [], [], []
+    for r in rows:
+        x = [r["V"]]
+        if offset:
+            o = np.zeros(2 * nk)
+            o[2 * idx[r["k"]]] = 1.0
+            o[2 * idx[r["k"]] + 1] = r["t"]
+            x.extend(o)
+        x.extend(r["relax"] if slow else r["relax"][:-1])
+        X.append(x)
+        y.append(r["s"])
+        w.append(r["w"])
+    return np.asarray(X, float), np.asarray(y, float), np.asarray(w, float)
+
+
+def _wls(X, y, w):
+    sw = np.sqrt(w)
+    Xs = X * sw[:, None]
+    scale = np.linalg.norm(Xs, axis=0)
+    scale[scale == 0] = 1.0
+    c, *_ = np.linalg.lstsq(Xs / scale, y * sw, rcond=None)
+    c = c / scale
+    r = (y - X @ c) * sw
+    return c, float(r @ r)
+
+
+def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
+    """Leakage conductance g [S] and offset-drift evidence from the holds of every trial (module docstring).
+
+    ``trials``: trial id -> prepared frame with ``t``, ``V``, ``q`` and ``relay`` (other columns are not read).
+    """
+    rows = []
+    for k, (name, df) in enumerate(trials.items()):
+        relay = df["relay"].to_numpy(float) >= 0.5
+        on = np.flatnonzero(relay)
+        a = int(on[-1] + 1) if len(on) else 0
+        t = df["t"].to_numpy(float)[a:]
+        if len(t) < 50:
+            continue
+        rows.extend(_hold_rows(str(name), k, t, df["V"].to_numpy(float)[a:], df["q"].to_numpy(float)[a:]))
+    ev = HoldEvidence(n_holds=len(rows))
+    if not rows:
+        ev.note = "no hold of at least 0.5 s in any trial: leakage cannot be seen without a hold"
+        return ev
+    ks = sorted({r["k"] for r in rows})
+    vr = np.array([r["V"] for r in rows])
+    vspan = float(np.ptp(vr))
+    ev.n_trials = len(ks)
+    ev.n_levels = int(len(np.unique(np.round(vr / max(0.05 * (np.max(np.abs(vr)) or 1.0), 1e-9)))))
+    # trials with a single hold cannot separate their offset rate from g V: they enter only through g
+    per = {k: sum(r["k"] == k for r in rows) for k in ks}
+    use = [r for r in rows if per[r["k"]] >= 3]
+    kk = sorted({r["k"] for r in use})
+    if len(use) < 6 or len(kk) < 1 or vspan <= 0:
+        ev.note = (f"{len(rows)} holds in {len(ks)} trials, too few (need >= 3 holds at two levels in a trial) "
+                   "to separate leakage from the offset drift")
+        return ev
+    X, y, w = _design(use, kk, True)
+    c, rss = _wls(X, y, w)
+    ev.g_s = float(c[0])
+    X0, y0, w0 = _design(use, kk, False)
+    _, rss0 = _wls(X0, y0, w0)
+    dof = max(len(y) - X.shape[1], 1)
+    ev.offset_f = float(((rss0 - rss) / max(2 * len(kk), 1)) / max(rss / dof, 1e-300))
+    from scipy.stats import f as fdist
+
+    ev.offset_supported = bool(dof >= 3 and ev.offset_f > fdist.ppf(0.999, 2 * len(kk), dof))
+    if len(kk) >= 2:
+        loto = []
+        for k in kk:
+            sub = [r for r in use if r["k"] != k]
+            ks2 = sorted({r["k"] for r in sub})
+            Xs, ys, ws = _design(sub, ks2, True)
+            if len(ys) <= Xs.shape[1]:
+                continue
+            loto.append(float(_wls(Xs, ys, ws)[0][0]))
+        ev.g_loto_s = loto
+        # standard error of g from the weighted residuals (holds of one trial share its offset columns, so the
+        # residuals are close to independent between holds); the leave-one-trial-out estimates must agree with g
+        # (their median within 50 %): no single trial may carry the evidence
+        XtWX = (X * w[:, None]).T @ X
+        cov = np.linalg.pinv(XtWX) * rss / dof
+        ev.g_se_s = float(np.sqrt(max(cov[0, 0], 0.0)))
+        ev.z = float(ev.g_s / ev.g_se_s) if ev.g_se_s > 0 else float("inf")
+        loto_ok = bool(len(loto) >= 2 and abs(float(np.median(loto)) - ev.g_s) <= 0.5 * abs(ev.g_s))
+    else:
+        loto_ok = False
+    # identifiability: over holds short against a relaxation, a slow relaxation current is indistinguishable from
+    # a leakage current; g must not move when a slower relaxation column is added
+    Xs_, ys_, ws_ = _design(use, kk, True, slow=True)
+    ev.g_slow_s = float(_wls(Xs_, ys_, ws_)[0][0]) if len(ys_) > Xs_.shape[1] else float("nan")
+    stable = bool(np.isfinite(ev.g_slow_s) and abs(ev.g_slow_s - ev.g_s) <= max(0.25 * abs(ev.g_s), ev.g_se_s))
+    ev.longest_hold_s = float(max(r["w"] for r in rows) / 0.7)
+    ev.supported = bool(ev.g_s > 0 and ev.z >= Z_SUPPORT and len(kk) >= 2 and ev.n_levels >= 2 and stable
+                        and loto_ok)
+    why = []
+    if not (ev.g_s > 0 and ev.z >= Z_SUPPORT):
+        why.append(f"g > 0 with z >= {Z_SUPPORT:g} (z = {ev.z:.2f})")
+    if len(kk) < 2 or ev.n_levels < 2:
+        why.append(">= 2 trials with holds at >= 2 voltage levels")
+    elif not loto_ok:
+        why.append("leave-one-trial-out estimates of g whose median agrees with g within 50 %")
+    if not stable:
+        why.append(f"g independent of a {SLOW_TAU_S:g} s relaxation ({ev.g_slow_s * 1e9:.3g} nS with it); holds of "
+                   f"~{ev.longest_hold_s:.1g} s are short against it: holds of >= {3 * SLOW_TAU_S:g} s at two "
+                   "voltage levels would separate leakage from slow relaxation")
+    ev.note = (f"{len(use)} holds in {len(kk)} trials: g = {ev.g_s * 1e9:.3g} nS, z = {ev.z:.2f}: "
+               + ("supported" if ev.supported else "not supported; needs " + "; ".join(why)))
+    return ev

@@ -1,0 +1,100 @@
+"""The charge link of the stage chain (selfsense.chain.charge): the leakage column, the hold evidence, and the
+estimator carrying the members the evidence supports without reading any validation reference."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from selfsense.chain.charge import find_holds, hold_evidence, leak_column
+
+C = 2e-6  # actuator capacitance [F]
+
+
+def _trial(levels, hold_s, g, *, relax_tau=1.0, relax_frac=0.02, offset_rate=0.0, seed=0, fs=200.0, ramp_s=0.5):
+    """V steps through ``levels`` with holds of ``hold_s``; measured charge = C V + a first-order relaxation of
+    ``relax_frac`` C V (time constant ``relax_tau``) + g int V dt + an offset charge ramp + noise."""
+    rng = np.random.default_rng(seed)
+    knots_t, knots_v, t0, v0 = [0.0], [0.0], 0.0, 0.0
+    for lev in levels:
+        t0 += ramp_s
+        knots_t.append(t0); knots_v.append(lev)
+        t0 += hold_s
+        knots_t.append(t0); knots_v.append(lev)
+    t = np.arange(0.0, t0, 1.0 / fs)
+    V = np.interp(t, knots_t, knots_v)
+    a = np.exp(-1.0 / fs / relax_tau)
+    from scipy.signal import lfilter
+
+    lp = lfilter([1 - a], [1, -a], V)
+    q = C * V + relax_frac * C * lp + g * leak_column(V, 1.0 / fs) + offset_rate * t
+    q = q + 1e-10 * rng.standard_normal(len(t))
+    return pd.DataFrame({"t": t, "V": V + 2e-3 * rng.standard_normal(len(t)), "q": q, "relay": np.zeros(len(t))})
+
+
+def test_leak_column_is_the_trapezoid_integral():
+    t = np.linspace(0.0, 2.0, 2001)
+    V = 3.0 + np.sin(2 * np.pi * t)
+    iv = leak_column(V, t[1] - t[0])
+    assert iv[0] == 0.0
+    # int_0^2 (3 + sin) dt = 6 exactly; trapezoid error O(dt^2)
+    assert iv[-1] == pytest.approx(6.0, abs=1e-5)
+    np.testing.assert_allclose(np.diff(iv), 0.5 * (V[1:] + V[:-1]) * (t[1] - t[0]))
+
+
+def test_find_holds_finds_each_level_and_ignores_ramps():
+    df = _trial([50.0, 0.0, 100.0], 3.0, 0.0)
+    holds = find_holds(df["t"].to_numpy(), df["V"].to_numpy())
+    levels = [float(np.mean(df["V"].to_numpy()[a:b])) for a, b in holds]
+    assert len(holds) == 3
+    np.testing.assert_allclose(levels, [50.0, 0.0, 100.0], atol=0.5)
+    t = df["t"].to_numpy()
+    assert all(t[b - 1] - t[a] >= 2.0 for a, b in holds)
+
+
+def test_long_holds_recover_the_leakage_conductance():
+    g = 20e-9
+    trials = {f"tr{k}": _trial([50.0, 0.0, 100.0, 0.0, 75.0], 20.0, g, seed=k, offset_rate=(k - 1) * 2e-10)
+              for k in range(3)}
+    ev = hold_evidence(trials)
+    assert ev.supported, ev.note
+    assert ev.g_s == pytest.approx(g, rel=0.1)
+    assert ev.n_trials == 3 and ev.n_levels >= 3
+
+
+def test_no_leakage_is_not_supported():
+    trials = {f"tr{k}": _trial([50.0, 0.0, 100.0, 0.0, 75.0], 20.0, 0.0, seed=k) for k in range(3)}
+    ev = hold_evidence(trials)
+    assert not ev.supported
+    assert abs(ev.g_s) < 1e-9
+
+
+def test_slow_relaxation_over_short_holds_is_not_called_leakage():
+    """A 10 s relaxation seen through 1 s holds looks like a charge ramp at every level: the identifiability check
+    refuses it and says which measurement would separate the two."""
+    trials = {f"tr{k}": _trial([100.0, 0.0, 60.0, 0.0, 100.0, 30.0], 1.0, 0.0, relax_tau=10.0, relax_frac=0.2,
+                               seed=k) for k in range(3)}
+    ev = hold_evidence(trials)
+    assert not ev.supported
+    assert "not supported" in ev.note
+
+
+def test_without_holds_the_evidence_says_so():
+    t = np.arange(0.0, 10.0, 1e-3)
+    V = 50 + 50 * np.sin(2 * np.pi * 0.5 * t)
+    df = pd.DataFrame({"t": t, "V": V, "q": C * V, "relay": np.zeros(len(t))})
+    ev = hold_evidence({"sine": df})
+    assert not ev.supported and ev.n_holds == 0
+    assert "no hold" in ev.note
+
+
+def test_relay_short_is_excluded():
+    """Samples while the relay shorts the leads are not a hold of the drive."""
+    df = _trial([50.0, 0.0, 100.0], 3.0, 0.0)
+    n = len(df)
+    relay = np.zeros(n)
+    relay[: n // 2] = 1.0
+    df["relay"] = relay
+    ev_all = hold_evidence({"a": df.assign(relay=0.0)})
+    ev_half = hold_evidence({"a": df})
+    assert ev_half.n_holds < ev_all.n_holds
