@@ -15,7 +15,7 @@ def _trial(levels, hold_s, g, *, relax_tau=1.0, relax_frac=0.02, offset_rate=0.0
     """V steps through ``levels`` with holds of ``hold_s``; measured charge = C V + a first-order relaxation of
     ``relax_frac`` C V (time constant ``relax_tau``) + g int V dt + an offset charge ramp + noise."""
     rng = np.random.default_rng(seed)
-    knots_t, knots_v, t0, v0 = [0.0], [0.0], 0.0, 0.0
+    knots_t, knots_v, t0, _v0 = [0.0], [0.0], 0.0, 0.0
     for lev in levels:
         t0 += ramp_s
         knots_t.append(t0); knots_v.append(lev)

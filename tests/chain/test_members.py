@@ -21,7 +21,7 @@ RIG = {
                          "free_displacement_m": 10e-6},
     "tip_free_displacement_m": 6.3e-3,
 }
-CFG = dict(h_model="preisach", cv_blocks=3, rest_offset="off", limit=False)
+CFG = {"h_model": "preisach", "cv_blocks": 3, "rest_offset": "off", "limit": False}
 
 
 def _h_true(Q):

@@ -32,13 +32,13 @@ regression (over holds short against a relaxation, its current cannot be told fr
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["leak_column", "find_holds", "hold_evidence", "HoldEvidence", "Z_SUPPORT", "RELAX_TAUS_S"]
+__all__ = ["RELAX_TAUS_S", "Z_SUPPORT", "HoldEvidence", "find_holds", "hold_evidence", "leak_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -82,7 +82,7 @@ def find_holds(t: np.ndarray, V: np.ndarray, min_s: float = MIN_HOLD_S) -> list[
     dt = float(np.median(np.diff(t)))
     noise = 1.4826 * float(np.median(np.abs(np.diff(V) - np.median(np.diff(V))))) / np.sqrt(2.0)
     tol = max(0.005 * float(np.ptp(V)), 4.0 * noise, 0.02)
-    w = max(2, int(round(0.05 / dt)))
+    w = max(2, round(0.05 / dt))
     # stationary where the 50 ms change is inside the band
     d = np.abs(V[w:] - V[:-w]) < tol
     st = np.zeros(n, bool)
@@ -130,7 +130,7 @@ def _hold_rows(name: str, k: int, t: np.ndarray, V: np.ndarray, Q: np.ndarray) -
     lps = [_lowpass(V, tau, dt) for tau in RELAX_TAUS_S + (SLOW_TAU_S,)]
     rows = []
     for a, b in find_holds(t, V):
-        a2 = a + max(int(0.3 * (b - a)), int(round(0.2 / dt)))
+        a2 = a + max(int(0.3 * (b - a)), round(0.2 / dt))
         if b - a2 < 20:
             continue
         tt = t[a2:b] - t[a2]
@@ -197,7 +197,7 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
     vr = np.array([r["V"] for r in rows])
     vspan = float(np.ptp(vr))
     ev.n_trials = len(ks)
-    ev.n_levels = int(len(np.unique(np.round(vr / max(0.05 * (np.max(np.abs(vr)) or 1.0), 1e-9)))))
+    ev.n_levels = len(np.unique(np.round(vr / max(0.05 * (np.max(np.abs(vr)) or 1.0), 1e-9))))
     # trials with a single hold cannot separate their offset rate from g V: they enter only through g
     per = {k: sum(r["k"] == k for r in rows) for k in ks}
     use = [r for r in rows if per[r["k"]] >= 3]
@@ -258,3 +258,70 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
     ev.note = (f"{len(use)} holds in {len(kk)} trials: g = {ev.g_s * 1e9:.3g} nS, z = {ev.z:.2f}: "
                + ("supported" if ev.supported else "not supported; needs " + "; ".join(why)))
     return ev
+
+
+# ------------------------------------------------------------------------------------------------ offset drift
+#: interior knots of the wandering-offset candidates (cubic-in-charge B-spline families, see :func:`offset_bases`)
+WANDER_KNOTS = (2, 4, 8)
+#: a wandering form replaces the thermal ramp only if its held-out rest error is this much lower
+WANDER_GAIN = 0.9
+
+
+def offset_bases(tt: np.ndarray, dur: float) -> dict[str, np.ndarray]:
+    """Candidate forms of the charge an in-amp offset integrates after the relay opened (``tt`` [s] since then):
+
+    * ``ramp``: ``a t + b t^2``, a constant plus a linearly drifting offset (a thermal ramp);
+    * ``wander<k>``: an offset that wanders, piecewise linear in time over ``k`` interior knots spread evenly over
+      the trial (hat functions), integrated into charge (so the charge drift is C1, piecewise quadratic).
+
+    Columns are scaled to a maximum of 1 (fit coefficients in coulombs)."""
+    tt = np.asarray(tt, float)
+    dur = max(float(dur), 1e-9)
+    out = {"ramp": np.column_stack([tt / dur, (tt / dur) ** 2])}
+    for k in WANDER_KNOTS:
+        knots = np.linspace(0.0, dur, k + 2)
+        h = knots[1] - knots[0]
+        cols = []
+        for j, kn in enumerate(knots):
+            # integral from 0 to t of the hat function centred at kn (width h each side), closed form
+            lo, hi = kn - h, kn + h
+            a = np.clip(tt, lo, kn)
+            b = np.clip(tt, kn, hi)
+            up = np.where(tt >= max(lo, 0.0), ((a - lo) ** 2 - (max(lo, 0.0) - lo) ** 2) / (2 * h), 0.0)
+            down = np.where(tt >= kn, (b - kn) - ((b - kn) ** 2) / (2 * h), 0.0)
+            c = up + down
+            m = float(np.max(np.abs(c))) or 1.0
+            cols.append(c / m)
+        out[f"wander{k}"] = np.column_stack(cols)
+    return out
+
+
+def select_offset_form(r0: np.ndarray, sens: np.ndarray, bases_rest: Mapping[str, np.ndarray],
+                       groups: np.ndarray, n_folds: int = 4) -> tuple[str, dict]:
+    """Choose the offset-drift form by blocked CV over the rest segments (linearised): the rest residual ``r0`` is
+    explained by ``sens * B c`` (``sens`` the residual's sensitivity to a charge shift at each rest sample);
+    contiguous groups of rest segments are left out in turn. A wandering form is chosen only if its held-out RMS is
+    below :data:`WANDER_GAIN` times the ramp's. Returns (name, CV RMS per form)."""
+    g = np.asarray(groups)
+    ug = np.unique(g)
+    if len(ug) < n_folds + 1:
+        return "ramp", {}
+    fold_of = {u: min(n_folds - 1, i * n_folds // len(ug)) for i, u in enumerate(ug)}
+    fold = np.array([fold_of[x] for x in g])
+    cv = {}
+    for name, B in bases_rest.items():
+        J = sens[:, None] * B
+        err = []
+        for f in range(n_folds):
+            tr, te = fold != f, fold == f
+            if tr.sum() <= J.shape[1]:
+                err.append(np.inf)
+                continue
+            # a light ridge keeps the knots without rest samples near them at zero instead of free
+            A = np.vstack([J[tr], 1e-3 * np.linalg.norm(J[tr]) / np.sqrt(J.shape[1]) * np.eye(J.shape[1])])
+            c, *_ = np.linalg.lstsq(A, np.concatenate([-r0[tr], np.zeros(J.shape[1])]), rcond=None)
+            err.append(float(np.mean((r0[te] + J[te] @ c) ** 2)))
+        cv[name] = float(np.sqrt(np.mean(err)))
+    best = min((n for n in cv if n != "ramp"), key=cv.get, default="ramp")
+    name = best if cv.get(best, np.inf) < WANDER_GAIN * cv["ramp"] else "ramp"
+    return name, cv

@@ -536,13 +536,13 @@ class SelfSensingEstimator:
 
     def _leakage(self, cal_trials, cal, slope) -> tuple[float, dict]:
         """Leakage conductance g [S] of the actuator set and whether to compensate offset drift, from the calibration
-        trials: g in 0..50 nS is the value for which a reference Preisach model (12 x 12 grid + 6 plays + creep, with
-        the per-trial drift columns) fits the joint calibration rows best on the corrected charge ``Q - g int V dt``
-        (bounded scalar search of the least-squares residual). Leakage is applied when the calibration rows support
+        trials: g in 0..50 nS (beyond, where the data reach that bound) is the value for which a reference Preisach
+        model (12 x 12 grid + 6 plays + creep, with the per-trial drift columns) fits the joint calibration rows best
+        on the corrected charge ``Q - g int V dt`` (bounded scalar search of the least-squares residual). Leakage is applied when the calibration rows support
         it (blocked-CV error not higher, leave-one-block-out estimates within 50 %) or when the reference-free holds
         of every trial do (:func:`selfsense.chain.charge.hold_evidence`, then with the hold-estimated g, provided the
-        calibration rows' blocked-CV error grows by at most 2 %); the offset-drift columns when they lower that error
-        by more than 1 %, or the holds show per-trial offset rates and the columns cost at most 2 %. ``members``
+        calibration rows' blocked-CV error grows by at most 2 %; when both support it, the estimate with the lower
+        calibration error); the offset-drift columns when they lower that error by more than 1 %. ``members``
         forces either on or off. Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
         """
         from scipy.optimize import minimize_scalar
@@ -564,9 +564,23 @@ class SelfSensingEstimator:
             folds = blocked_folds([len(q[::k]) for q in qs], 3)
             return float(np.mean(_cv_linear(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, folds, 8)))
 
+        # the search runs over 0-50 nS; where it ends at that bound it continues up to the conductance whose charge
+        # g int V dt would reach half of the largest calibration charge range (a bound from the data, not a prior)
+        spans = []
+        for tid in cal.index:
+            d = cal_trials[tid]
+            m = d["relay"].to_numpy() < 0.5
+            iv = integral_v(d)[m]
+            if len(iv):
+                spans.append((float(np.ptp(d["q"].to_numpy()[m])), float(np.max(np.abs(iv)))))
+        g_max = max([50e-9] + [0.5 * q / iv for q, iv in spans if iv > 0])
+
         def search(drop=None):
             res = minimize_scalar(lambda g: insample(g, drop), bounds=(0.0, 50e-9), method="bounded",
                                   options={"xatol": 0.05e-9})
+            if res.x > 49e-9 and g_max > 50e-9:
+                res = minimize_scalar(lambda g: insample(g, drop), bounds=(49e-9, g_max), method="bounded",
+                                      options={"xatol": 0.05e-9})
             return float(res.x)
 
         modes = self._member_modes()
@@ -612,21 +626,21 @@ class SelfSensingEstimator:
         if modes["leakage"] == "on" and source != "none":
             notes.append(f"leakage compensation forced on (g from the {source})")
         # in-amp offset drift: per-trial t^2 charge columns in the H fit, and each trial's own rest segments
-        # (rest_drift) -- applied if the columns lower the calibration rows' blocked-CV error by more than 1 %, or if
-        # the holds of all trials show per-trial offset rates (F test, p < 0.001) and the columns do not make the
-        # calibration rows worse by more than 2 %
+        # (rest_drift) -- applied if the columns lower the calibration rows' blocked-CV error by more than 1 %. The
+        # holds' per-trial offset rates (F test) are reported, not used: on virtual devices without any offset drift
+        # the F test also fires on relaxation the hold regression does not model, and the rest-segment estimate then
+        # takes that relaxation for drift (measured in docs/gap.md, "The charge link")
         without_cols = cv(g, False)
         info["offset_drift_cv_rms_v_without"] = without_cols
         cal_gain = bool(best < 0.99 * without_cols)
-        hold_gain = bool(ev.get("offset_supported") and best <= 1.02 * without_cols)
-        applied = {"off": False, "on": True}.get(modes["offset_drift"], cal_gain or hold_gain)
+        applied = {"off": False, "on": True}.get(modes["offset_drift"], cal_gain)
         info["offset_drift_applied"] = bool(applied)
         info["offset_drift_source"] = ("forced" if modes["offset_drift"] != "auto" else
-                                       "calibration" if cal_gain else "holds" if hold_gain else "none")
+                                       "calibration" if cal_gain else "none")
         if not applied:
-            notes.append("offset-drift compensation not supported (calibration blocked-CV gain < 1 % and no "
-                         "per-trial offset rate in the holds"
-                         + (", forced off" if modes["offset_drift"] == "off" else "") + "): not applied")
+            notes.append("offset-drift compensation " + ("forced off" if modes["offset_drift"] == "off" else
+                                                         "not supported (calibration blocked-CV gain < 1 %)")
+                         + ": not applied")
         if notes:
             info["note"] = "; ".join(notes)
         return g, info
@@ -715,12 +729,14 @@ class SelfSensingEstimator:
         return Q
 
     def rest_drift(self, df: pd.DataFrame, Q: np.ndarray) -> tuple[np.ndarray, dict]:
-        """Charge drift ``dQ(t) = a t + b t^2`` [C] (t since the relay opened) of one trial from its rest segments.
+        """Charge drift ``dQ(t)`` [C] (t since the relay opened) of one trial from its rest segments: ``a t + b t^2``
+        (a thermal ramp of the in-amp offset) or, where the rest segments show it by blocked CV, an offset that
+        wanders (:func:`selfsense.chain.charge.offset_bases`, :func:`~selfsense.chain.charge.select_offset_form`).
 
         At rest (|V| below 1 % of the trial's peak, at least 0.5 V, relay open) the tip is open and force-free, so the
         free-tip relation of the eq. (55) gauge, ``V - H(Q) = Q / (n_A C_p)``, must hold (thesis
         000_18d138f03f1777c3.txt eqs. 52, 55): its residual there is charge drift from the in-amp offset drift
-        (CALIBRATION_NOTES item 5: 0.3 mV integrates to volts). ``a, b`` by two Gauss-Newton steps. Returns zeros and
+        (0.3 mV over the shunt integrates to volts of V_p). Coefficients by two Gauss-Newton steps. Returns zeros and
         the reason when the rest samples are too few (< 0.3 s) or do not span 40 % of the trial."""
         V = df["V"].to_numpy(dtype=float)
         relay = df["relay"].to_numpy(dtype=float) >= 0.5
@@ -737,23 +753,49 @@ class SelfSensingEstimator:
         if not rest.any() or rest.sum() * dt < 0.3 or np.ptp(tt[rest]) < 0.4 * dur:
             return zero, {"applied": False, "note": "too little rest (|V| ~ 0) spread over the trial to estimate "
                                                     "the offset drift: not compensated"}
+        from selfsense.chain.charge import offset_bases, select_offset_form
+
         slope = self.h_slope_
-        B = np.column_stack([tt, tt * tt])
-        scale = np.array([1e-8 / max(dur, 1e-9), 1e-8 / max(dur, 1e-9) ** 2])  # ~10 nC perturbations
 
-        def resid(c):
-            Qc = Q - B @ c
-            return (V - self._h(Qc, df) - slope * Qc)[rest]
+        def resid_of(B):
+            def resid(c):
+                Qc = Q - B @ c
+                return (V - self._h(Qc, df) - slope * Qc)[rest]
+            return resid
 
-        c = np.zeros(2)
+        # the form of the drift (selfsense.chain.charge): the thermal ramp a t + b t^2, or an offset that wanders,
+        # chosen by blocked CV over the rest segments in the linearised problem (the residual's sensitivity to a
+        # 10 nC charge shift at each rest sample)
+        bases = offset_bases(tt, dur)
+        open_ = (~relay).astype(float)
+        r_0 = resid_of(open_[:, None])(np.zeros(1))
+        sens = (resid_of(open_[:, None])(np.array([1e-8])) - r_0) / 1e-8
+        runs = np.cumsum(np.diff(np.concatenate([[0], rest.astype(int)])) == 1)[rest]
+        form, form_cv = select_offset_form(r_0, sens, {n: b[rest] for n, b in bases.items()}, runs)
+        if form == "ramp":
+            B = np.column_stack([tt, tt * tt])
+            scale = np.array([1e-8 / max(dur, 1e-9), 1e-8 / max(dur, 1e-9) ** 2])  # ~10 nC perturbations
+        else:
+            B = np.where(relay[:, None], 0.0, bases[form])
+            scale = np.full(B.shape[1], 1e-8)
+        resid = resid_of(B)
+        m = B.shape[1]
+        c = np.zeros(m)
         for _ in range(2):
             r0 = resid(c)
-            J = np.column_stack([(resid(c + scale[j] * np.eye(2)[j]) - r0) / scale[j] for j in range(2)])
-            step, *_ = np.linalg.lstsq(J, -r0, rcond=None)
+            J = np.column_stack([(resid(c + scale[j] * np.eye(m)[j]) - r0) / scale[j] for j in range(m)])
+            if form == "ramp":
+                step, *_ = np.linalg.lstsq(J, -r0, rcond=None)
+            else:  # the same light ridge as the form's selection
+                A = np.vstack([J, 1e-3 * np.linalg.norm(J) / np.sqrt(m) * np.eye(m)])
+                step, *_ = np.linalg.lstsq(A, np.concatenate([-r0, np.zeros(m)]), rcond=None)
             c = c + step
         dQ = np.where(relay, 0.0, B @ c)
-        return dQ, {"applied": True, "a_c_per_s": float(c[0]), "b_c_per_s2": float(c[1]),
-                    "max_abs_c": float(np.max(np.abs(dQ))), "rest_s": float(rest.sum() * dt)}
+        info = {"applied": True, "form": form, "form_cv_rms_v": form_cv, "max_abs_c": float(np.max(np.abs(dQ))),
+                "rest_s": float(rest.sum() * dt)}
+        if form == "ramp":
+            info.update({"a_c_per_s": float(c[0]), "b_c_per_s2": float(c[1])})
+        return dQ, info
 
     def _h(self, Q: np.ndarray, df: pd.DataFrame) -> np.ndarray:
         return _eval_h(self.hysteresis_, Q, _trial_dt(df))
