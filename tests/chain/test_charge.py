@@ -98,3 +98,39 @@ def test_relay_short_is_excluded():
     ev_all = hold_evidence({"a": df.assign(relay=0.0)})
     ev_half = hold_evidence({"a": df})
     assert ev_half.n_holds < ev_all.n_holds
+
+
+def test_offset_bases_integrate_hat_functions():
+    """The wandering-offset columns are the running integrals of hat functions (a piecewise-linear offset current
+    integrated into charge), zero at the relay release."""
+    from selfsense.chain.charge import offset_bases
+
+    t = np.linspace(0.0, 10.0, 10001)
+    B = offset_bases(t, 10.0)
+    assert set(B) >= {"ramp", "wander2", "wander4", "wander8"}
+    knots = np.linspace(0.0, 10.0, 6)
+    h = knots[1] - knots[0]
+    for j, kn in enumerate(knots):
+        hat = np.clip(1 - np.abs(t - kn) / h, 0, None)
+        ci = np.concatenate([[0.0], np.cumsum(0.5 * (hat[1:] + hat[:-1]) * (t[1] - t[0]))])
+        np.testing.assert_allclose(B["wander4"][:, j], ci / np.max(ci), atol=1e-6)
+    assert np.all(B["wander8"][0] == 0.0)
+
+
+@pytest.mark.parametrize("kind", ["ramp", "wander"])
+def test_offset_form_is_chosen_by_held_out_rests(kind):
+    """Rest residuals from a thermal ramp keep the ramp; from an offset that reverses twice, a wander form wins."""
+    from selfsense.chain.charge import offset_bases, select_offset_form
+
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 20.0, 4001)
+    rest = (np.sin(2 * np.pi * 0.4 * t) < -0.8)  # rests once per cycle, spread over the trial
+    runs = np.cumsum(np.diff(np.concatenate([[0], rest.astype(int)])) == 1)[rest]
+    if kind == "ramp":
+        dq = 1e-8 * (0.3 * t + 0.05 * t * t)
+    else:
+        dq = 1e-7 * np.sin(2 * np.pi * t / 13.0)
+    sens = np.full(rest.sum(), 2e6)  # V per C
+    r0 = (sens * dq[rest]) + 1e-4 * rng.standard_normal(rest.sum())
+    form, cv = select_offset_form(-r0, sens, {n: b[rest] for n, b in offset_bases(t, 20.0).items()}, runs)
+    assert (form == "ramp") == (kind == "ramp"), cv
