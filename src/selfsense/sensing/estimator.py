@@ -56,6 +56,8 @@ H_MODES = ("thesis", "onsite")
 H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
+#: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
+N_DRIFT_ALTERNATIONS = 1
 
 
 class CalibrationError(ValueError):
@@ -394,6 +396,8 @@ class SelfSensingEstimator:
     leakage_s_: float = field(default=0.0, init=False)
     offset_drift_: bool = field(default=False, init=False)
     hold_evidence_: dict = field(default_factory=dict, init=False)
+    #: the H(q) fitted beside the per-trial drift columns; the rest-segment drift estimate uses it (None: hysteresis_)
+    drift_hysteresis_: Any = field(default=None, init=False, repr=False)
     _extra_names: list = field(default_factory=list, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
@@ -668,6 +672,7 @@ class SelfSensingEstimator:
         self.leakage_s_ = 0.0
         drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
         self.offset_drift_ = False
+        self.drift_hysteresis_ = None
         if cfg.drift == "auto" or any(m != "auto" for m in self._member_modes().values()):
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
             self.offset_drift_ = bool(drift_info["offset_drift_applied"])
@@ -695,6 +700,9 @@ class SelfSensingEstimator:
                                     f"beat a straight line out of sample ({chosen['cv_rms_mean_v']:.4g} V vs "
                                     f"{lin['cv_rms_mean_v']:.4g} V): expect poor force estimates")
                 log.warning(sel.warnings[-1])
+        if self.offset_drift_:
+            model, qs, ys, ex, sel.extra_coef, drift_info["joint_refit"] = self._refit_on_drift_free_charge(
+                model, sel, cal_trials, names, slope, dt, qs, ys, ex)
         rms = []
         for q, y, e in zip(qs, ys, ex):
             pred = model.predict(q, dt)
@@ -714,6 +722,39 @@ class SelfSensingEstimator:
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
+
+    def _refit_on_drift_free_charge(self, model, sel, cal_trials, names, slope, dt, qs, ys, ex):
+        """H(q) and the offset drift identified jointly: the drift columns of the selection's fit stand in for the
+        drift while H is chosen, but H still sees the drifting charge; here each calibration trial's drift is
+        estimated from its rest segments with that H (:meth:`rest_drift`), taken out of its charge, and the selected
+        model is refitted on the drift-free rows (without the drift columns). Models fitted on one trial only (the
+        modified PI) keep their fit."""
+        from selfsense.hysteresis.models import LinearParamH, make_model
+
+        row = next((r for r in sel.table if r.get("selected")), None)
+        if row is None or not (isinstance(model, LinearParamH) or getattr(model, "joint_extra", False)):
+            return model, qs, ys, ex, sel.extra_coef, {"applied": False}
+        n_tr = len(names)
+        ex2 = [e[:, :e.shape[1] - n_tr] for e in ex]  # the per-trial drift columns are the last n_tr
+        refit = model
+        self.drift_hysteresis_ = model
+        for _ in range(N_DRIFT_ALTERNATIONS):
+            self.hysteresis_ = refit
+            qs2, ys2, moved = [], [], {}
+            for tid in names:
+                df = cal_trials[tid]
+                m = df["relay"].to_numpy() < 0.5
+                Q = self._charge(df, self.leakage_s_)  # leakage only (g given: no drift correction yet)
+                dQ, info = self.rest_drift(df, Q)
+                Qc = (Q - dQ)[m]
+                qs2.append(Qc)
+                ys2.append(h_target(df["V"].to_numpy()[m], Qc, slope))
+                moved[tid] = {"max_abs_c": float(np.max(np.abs(dQ))), "form": info.get("form", info.get("note", ""))}
+            refit = make_model(row["kind"], **row["params"])
+            refit.fit(qs2, ys2, dt, extra=ex2)
+        self.hysteresis_ = None
+        return refit, qs2, ys2, ex2, np.asarray(refit.extra_coef_, float), {
+            "applied": True, "alternations": N_DRIFT_ALTERNATIONS, "drift": moved}
 
     def _charge(self, df: pd.DataFrame, g_leak: float | None = None, drift: bool = True) -> np.ndarray:
         """Measured charge corrected for the leakage conductance (``Q - g int V dt``) and, once H(q) is known and
@@ -756,11 +797,15 @@ class SelfSensingEstimator:
         from selfsense.chain.charge import offset_bases, select_offset_form
 
         slope = self.h_slope_
+        # the H identified beside the drift columns (where drift and H are told apart), not the one refitted on the
+        # drift-free charge (:meth:`_refit_on_drift_free_charge`): alternating the two lets H's creep bank and the
+        # drift trade a slow trend between them (measured: b grew 2x over three alternations)
+        h_drift = self.drift_hysteresis_ if self.drift_hysteresis_ is not None else self.hysteresis_
 
         def resid_of(B):
             def resid(c):
                 Qc = Q - B @ c
-                return (V - self._h(Qc, df) - slope * Qc)[rest]
+                return (V - _eval_h(h_drift, Qc, dt) - slope * Qc)[rest]
             return resid
 
         # the form of the drift (selfsense.chain.charge): the thermal ramp a t + b t^2, or an offset that wanders,
@@ -981,12 +1026,14 @@ class SelfSensingEstimator:
             "leakage_s": self.leakage_s_,
             "offset_drift": self.offset_drift_,
             "members": dict(self.members),
+            "drift_hysteresis": (_h_to_dict(self.drift_hysteresis_) if self.drift_hysteresis_ is not None else None),
         }
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], rig: Any) -> "SelfSensingEstimator":
         est = cls(config=SensingConfig(**d["config"]), rig=rig, members=dict(d.get("members", {})))
         est.hysteresis_ = _h_from_dict(d["hysteresis"]) if d.get("hysteresis") else None
+        est.drift_hysteresis_ = _h_from_dict(d["drift_hysteresis"]) if d.get("drift_hysteresis") else None
         est.h_slope_ = float(d["h_slope"])
         est.onsite_ = dict(d.get("onsite", {}))
         est.coef_ = dict(d["coef"])
