@@ -727,13 +727,15 @@ class SelfSensingEstimator:
         """H(q) and the offset drift identified jointly: the drift columns of the selection's fit stand in for the
         drift while H is chosen, but H still sees the drifting charge; here each calibration trial's drift is
         estimated from its rest segments with that H (:meth:`rest_drift`), taken out of its charge, and the selected
-        model is refitted on the drift-free rows (without the drift columns). Models fitted on one trial only (the
-        modified PI) keep their fit."""
+        model is refitted on the drift-free rows (without the drift columns). Models that are not linear in their
+        parameters (the modified PI fitted on one trial, the non-convex Duhem model) keep their fit."""
         from selfsense.hysteresis.models import LinearParamH, make_model
 
         row = next((r for r in sel.table if r.get("selected")), None)
-        if row is None or not (isinstance(model, LinearParamH) or getattr(model, "joint_extra", False)):
-            return model, qs, ys, ex, sel.extra_coef, {"applied": False}
+        if row is None or not isinstance(model, LinearParamH) or not getattr(model, "convex", True):
+            # a non-convex fit (the Duhem model) started again on other rows can land elsewhere (measured: Bouc-Wen
+            # devices went from 12 to 62 % displacement); it keeps the fit beside the drift columns
+            return model, qs, ys, ex, sel.extra_coef, {"applied": False, "note": f"{model.kind}: not refitted"}
         n_tr = len(names)
         ex2 = [e[:, :e.shape[1] - n_tr] for e in ex]  # the per-trial drift columns are the last n_tr
         refit = model
