@@ -178,9 +178,14 @@ def _model_section(results_dir: Path) -> list[str]:
                 + ", identified jointly on the free-tip and force-reference calibration trials")
         drift = rep.get("drift") or {}
         if drift:
-            kind += (f"; charge leakage {'compensated, ' + format(drift.get('leakage_s', 0) * 1e9, '.2f') + ' nS' if drift.get('applied') else 'not compensated'}"
+            src = {"holds": " (from the holds of all trials)", "calibration": " (from the calibration rows)"}.get(
+                str(drift.get("source")), "")
+            kind += (f"; charge leakage {'compensated, ' + format(drift.get('leakage_s', 0) * 1e9, '.2f') + ' nS' + src if drift.get('applied') else 'not compensated'}"
                      f", offset drift {'compensated' if drift.get('offset_drift_applied') else 'not compensated'}"
                      + (f" ({html.escape(str(drift['note']))})" if drift.get("note") else ""))
+            hev = drift.get("hold_evidence") or {}
+            if hev.get("note"):
+                kind += f"; reference-free hold evidence of all trials: {html.escape(str(hev['note']))}"
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"
