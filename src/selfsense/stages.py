@@ -118,7 +118,10 @@ def selection_table(est: SelfSensingEstimator) -> pd.DataFrame:
     """The H(q) model-selection table of a fitted estimator: one row per candidate (blocked-CV RMS per fold and mean
     [V], the straight line's mean for comparison, selected flag); empty for the thesis identification."""
     rep = est.fit_report_.get("hysteresis", {})
-    table = rep.get("selection") or []
+    nan = float("nan")
+    table = [{**r, "cv_rms_v": [nan if v is None else v for v in r["cv_rms_v"]],
+              "cv_rms_mean_v": nan if r["cv_rms_mean_v"] is None else r["cv_rms_mean_v"]}
+             for r in rep.get("selection") or []]
     lin = next((r["cv_rms_mean_v"] for r in table if r["kind"] == "linear"), float("nan"))
     rows = []
     for r in table:

@@ -145,15 +145,16 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def _check_finite(o: Any) -> None:
+def _check_finite(o: Any, where: str = "") -> None:
     if isinstance(o, float) and not math.isfinite(o):
-        raise ValueError(f"JSON artefacts must not contain NaN/inf (found {o!r}); use null")
+        raise ValueError(f"JSON artefacts must not contain NaN/inf (found {o!r} at {where or 'the top level'}); "
+                         "use null")
     if isinstance(o, dict):
-        for v in o.values():
-            _check_finite(v)
+        for k, v in o.items():
+            _check_finite(v, f"{where}.{k}" if where else str(k))
     elif isinstance(o, (list, tuple)):
-        for v in o:
-            _check_finite(v)
+        for i, v in enumerate(o):
+            _check_finite(v, f"{where}[{i}]")
 
 
 def dumps_json(obj: Any) -> str:
@@ -165,8 +166,13 @@ def dumps_json(obj: Any) -> str:
 
 
 def write_json_atomic(obj: Any, path: str | os.PathLike) -> Path:
-    """Write ``obj`` as deterministic JSON (see :func:`dumps_json`), atomically."""
-    return atomic_write_text(path, dumps_json(obj))
+    """Write ``obj`` as deterministic JSON (see :func:`dumps_json`), atomically; a NaN / inf is refused with the file
+    and the key path that holds it (nothing is written)."""
+    try:
+        text = dumps_json(obj)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return atomic_write_text(path, text)
 
 
 def savefig_atomic(fig, path: str | os.PathLike, **kw) -> Path:

@@ -360,13 +360,25 @@ def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5)
 
 def _force_only_selected(table: list, kind: str) -> list:
     """Re-mark the selection table when the configuration names one model kind: its best variant is used."""
-    own = [r for r in table if r["kind"] == kind and np.isfinite(r["cv_rms_mean_v"])]
+    own = [r for r in table if r["kind"] == kind and r.get("status", "ok") == "ok"
+           and r["cv_rms_mean_v"] is not None and np.isfinite(r["cv_rms_mean_v"])]
     if not own:
         return table
     best = min(own, key=lambda r: r["cv_rms_mean_v"])
     for r in table:
         r["selected"] = r is best
     return table
+
+
+def _json_safe_report(rep: Mapping[str, Any]) -> dict:
+    """The fit report with the H(q) selection table JSON-safe (a failed candidate's NaN fold errors as null)."""
+    from selfsense.hysteresis.models.select import json_safe_table
+
+    out = dict(rep)
+    h = out.get("hysteresis")
+    if isinstance(h, Mapping) and h.get("selection"):
+        out["hysteresis"] = {**h, "selection": json_safe_table(list(h["selection"]))}
+    return out
 
 
 @dataclass
@@ -1023,7 +1035,7 @@ class SelfSensingEstimator:
             "onsite": self.onsite_,
             "coef": self.coef_,
             "ranges": self.ranges_,
-            "fit_report": self.fit_report_,
+            "fit_report": _json_safe_report(self.fit_report_),
             "calibration_trials": self.calibration_trials_,
             "leakage_s": self.leakage_s_,
             "offset_drift": self.offset_drift_,

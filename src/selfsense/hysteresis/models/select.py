@@ -186,9 +186,44 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
         status = "ok"
     except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
         rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+    bad = [i + 1 for i, r in enumerate(rms) if not np.isfinite(r)]
+    if status == "ok" and bad:  # a fit that returned NaN / inf on some folds is out of the race too
+        status = f"failed: non-finite held-out error on fold(s) {bad}"
     return {"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
             "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
             "status": status, "selected": False}
+
+
+#: a candidate whose worst held-out fold exceeds this many times the straight line's worst fold is unstable out of
+#: sample (a non-convex fit or a state that wanders where no data were) and is not selected
+UNSTABLE_FACTOR = 10.0
+
+
+def _reject_unstable(table: list[dict]) -> None:
+    """Mark candidates that explode on some folds (worst fold > :data:`UNSTABLE_FACTOR` x the straight line's worst
+    fold) as rejected, with the numbers in their status."""
+    lin = next((r for r in table if r["kind"] == "linear" and r["status"] == "ok"), None)
+    if lin is None:
+        return
+    ref = float(np.max(lin["cv_rms_v"]))
+    for r in table:
+        if r is lin or r["status"] != "ok":
+            continue
+        worst = float(np.max(r["cv_rms_v"]))
+        if worst > UNSTABLE_FACTOR * ref:
+            r["status"] = (f"rejected: unstable out of sample (worst fold {worst:.4g} V > {UNSTABLE_FACTOR:g} x the "
+                           f"straight line's worst fold {ref:.4g} V)")
+
+
+def json_safe_table(table: list[dict]) -> list[dict]:
+    """The selection table with non-finite numbers as ``None`` (JSON null): failed candidates stay on record."""
+    def safe(v):
+        if isinstance(v, float) and not np.isfinite(v):
+            return None
+        if isinstance(v, list):
+            return [safe(x) for x in v]
+        return v
+    return [{k: safe(v) for k, v in r.items()} for r in table]
 
 
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
@@ -210,7 +245,8 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
     table = [cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
                           rotate, thin) for kind, params in candidates]
-    ok = [r for r in table if np.isfinite(r["cv_rms_mean_v"])]
+    _reject_unstable(table)
+    ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
     if not ok:
         raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
                                  f"{names}: " + "; ".join(f"{r['label']}: {r['status']}" for r in table))
