@@ -1,8 +1,7 @@
 """The pipeline's stages as plain functions: each Snakemake rule's script calls exactly one of them.
 
 They read their inputs from disk, call the science in ``selfsense.*`` and write their outputs atomically, so they
-can also be used from a notebook or the ``selfsense`` command without Snakemake. The flow follows
-``ARCHITECTURE.md``::
+can also be used from a notebook or the ``selfsense`` command without Snakemake. The flow::
 
     data/raw/<d>/  -> validate -> signals/<trial>.parquet -> model/hysteresis.json -> model/sensing.json
                    -> estimates/<trial>.parquet -> tables/*.csv|md -> figures/*.png|pdf -> report.html
@@ -53,7 +52,7 @@ COMPARE_MAX_SAMPLES = 2_000_000
 
 def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = "fail",
              max_trial_samples: int | None = MAX_TRIAL_SAMPLES) -> dict:
-    """Check the whole dataset against DATA_FORMAT.md.
+    """Check the whole dataset against docs/data_format.md.
 
     Problems of ``rig.yaml`` / ``trials.csv`` or of a calibration trial's log always raise ``ContractError`` listing
     every problem. Problems confined to one validation trial's log raise too with ``on_bad_trial="fail"`` (default);

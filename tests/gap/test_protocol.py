@@ -1,4 +1,4 @@
-"""Excitation check and acquisition-protocol proposal (GAP_DIAGNOSIS.md sec. 4)."""
+"""Excitation check and acquisition-protocol proposal (docs/gap.md)."""
 import pytest
 
 from selfsense.gap.benchmark import simulate_device_case

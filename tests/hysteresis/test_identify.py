@@ -81,7 +81,7 @@ def test_degrades_gracefully_with_noise(data):
 
 
 def test_default_thresholds_fit_saturating_data(data):
-    # the superposition part must not collapse (CALIBRATION_NOTES item 3): default thresholds, no hints
+    # the superposition part must not collapse: default thresholds, no hints
     x, y, true = data
     model, rep = fit_modified_pi(x, y, DT, offset=True)
     assert rep.rms_pct < 0.3

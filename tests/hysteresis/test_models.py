@@ -107,7 +107,7 @@ def test_preisach_recovers_its_own_density_out_of_sample():
 
 
 def test_signed_pi_recovers_saturating_loops_that_nonnegative_weights_cannot_make():
-    """Signed play weights (here one negative) are recovered exactly (CALIBRATION_NOTES item 3)."""
+    """Signed play weights (here one negative) are recovered exactly."""
     q = _drive(seed=4)
     u = q / (q.max() * 1.02)
     m0 = PlayH(n_play=5, ridge=0.0, creep=False).fit(q, u, DT)
@@ -120,7 +120,7 @@ def test_signed_pi_recovers_saturating_loops_that_nonnegative_weights_cannot_mak
 
 
 def test_creep_eigenvalues_live_in_seconds():
-    """A creep bank evaluated at a thinned sample time is the same model (CALIBRATION_NOTES item 8): predictions on
+    """A creep bank evaluated at a thinned sample time is the same model: predictions on
     every 4th sample at dt = 4 ms match the 1 ms predictions to within the discretisation error."""
     q = _drive(8000, seed=5)
     v = 50 * q / QREF + 2.0 * (q / QREF - relaxation_bank(q / QREF, DT, [2.0])[:, 0] * 0 - 0) \
@@ -175,7 +175,7 @@ def test_degenerate_data_raise():
 
 def test_modified_pi_worse_than_a_line_is_an_error_not_optimal():
     """Saturating loops (one negative play weight) plus a static tanh: Kuhnen's QP reports 'optimal' for a fit worse
-    than a straight line (CALIBRATION_NOTES item 7); the public fit refuses it."""
+    than a straight line; the public fit refuses it."""
     q = _drive()
     P = play_operator(q / QREF, [0.1, 0.25])
     v = 60.0 * q / QREF + 6.0 * P[:, 0] - 3.0 * P[:, 1] + 0.5 * np.tanh(5 * (q / QREF - 0.4))

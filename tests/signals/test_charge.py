@@ -64,7 +64,7 @@ def test_linear_current_exact_on_nonuniform_grid():
 
 
 def test_offset_removed_from_relay_segment():
-    off = 0.3e-3  # CALIBRATION_NOTES item 5: 0.3 mV after the in-amp
+    off = 0.3e-3  # 0.3 mV after the in-amp
     t, V_s, relay, q_true = _sine_case(offset=off)
     q, est = charge_from_shunt(t, V_s, relay, R)
     assert est == pytest.approx(off, rel=1e-12)

@@ -1,4 +1,4 @@
-"""selfsense.gap: the sim-to-real gap diagnostic (GAP_DIAGNOSIS.md; docs/gap.md).
+"""selfsense.gap: the sim-to-real gap diagnostic (docs/gap.md; docs/gap.md).
 
 Public API (imported lazily)::
 

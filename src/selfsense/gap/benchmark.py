@@ -1,4 +1,4 @@
-"""Blind benchmark of the gap diagnostic on simulated devices (GAP_DIAGNOSIS.md sec. 4).
+"""Blind benchmark of the gap diagnostic on simulated devices (docs/gap.md).
 
 For each case: draw effects (0 ~20 %, 1 ~50 %, 2-3, open-set tier), simulate in memory, run :func:`diagnose` on the
 dataset only (the manifest is sealed: the diagnostic receives trials, meta and rig, never the effect list), then
@@ -48,7 +48,7 @@ def _ns(d):
 
 
 def _device_scenario(T: float, fs: float, seed: int | None = None) -> list[dict]:
-    """In-memory benchmark protocol for the device simulator (GAP_DIAGNOSIS.md sec. 4, "excitation design").
+    """In-memory benchmark protocol for the device simulator (docs/gap.md"excitation design").
 
     Calibration: free-tip sine (nested minor loops) and blocked-tip sine, a free-tip mixed trial (trapezoids with
     holds at high V and at 0 V) and the *acquisition protocol* trial: symmetric up/down steps to the same level with
@@ -280,7 +280,7 @@ def strong_subset(records: list[dict], floor: float, k: float = 3.0) -> list[dic
 
 
 def score(records: list[dict], strong_k: float | None = 3.0) -> dict:
-    """Benchmark scores (GAP_DIAGNOSIS.md sec. 4) from case records. With ``strong_k``, the same scores on the
+    """Benchmark scores (docs/gap.md) from case records. With ``strong_k``, the same scores on the
     cases whose effects are at least ``strong_k`` x the noise floor are added under ``strong.<score>`` (the
     issue's targets apply to those)."""
     out = _score(records)

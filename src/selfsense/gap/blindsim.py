@@ -1,4 +1,4 @@
-"""Blind-check datasets on the device families (GAP_DIAGNOSIS.md sec. 4, across devices).
+"""Blind-check datasets on the device families (docs/gap.mdcross devices).
 
 A case is a virtual device drawn from one of the truth families of :mod:`selfsense.sim.families` (Preisach,
 saturating Bouc-Wen, generalised PI, Jiles-Atherton: none of them a form the diagnostic fits), driven by the

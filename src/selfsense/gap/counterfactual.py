@@ -1,5 +1,5 @@
 """How far it shrinks: each confirmed effect applied as a correction with its stage-fitted coefficients FIXED
-(GAP_DIAGNOSIS.md sec. 3 and 5: refitting eq. 52 with free extra columns re-fits the nominal mismatch; a fixed
+(docs/gap.md: refitting eq. 52 with free extra columns re-fits the nominal mismatch; a fixed
 correction predicted the counterfactual tip-error change to ~0.02 points).
 
 A correction acts where the stage says the effect acts:

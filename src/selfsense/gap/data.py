@@ -88,7 +88,7 @@ def within_budget(df: pd.DataFrame, budget: int) -> tuple[pd.DataFrame, int]:
 
 
 def load_case(dataset_dir: str | Path, with_truth: bool = True, max_samples: int | None = None) -> Case:
-    """Read and validate a raw dataset (DATA_FORMAT.md) through ``selfsense.io`` and prepare every trial.
+    """Read and validate a raw dataset (docs/data_format.md) through ``selfsense.io`` and prepare every trial.
 
     Sample budget (:mod:`selfsense.io.budget`): a trial longer than ``max_samples`` (default
     ``GAP_MAX_SAMPLES``) is reduced to block means of k samples after the charge is integrated at the full rate

@@ -1,10 +1,10 @@
 """The gap diagnostic: where (budget), which (library screening, selection, confirmation), how far (shrink).
 
-GAP_DIAGNOSIS.md secs. 1-3. Errors are mean absolute errors in % of the measurement's range (the reference's
+docs/gap.md. Errors are mean absolute errors in % of the measurement's range (the reference's
 peak-to-peak over the dataset), evaluated on validation trials only ("held-out"); every "after" number comes from a
 refit on calibration trials (CONTRACTS.md augmentation protocol), never from the residual regression.
 
-Held-out rows per measurement (CALIBRATION_NOTES 1): displacement = dx_ref on displacement-reference trials and
+Held-out rows per measurement: displacement = dx_ref on displacement-reference trials and
 dx = 0 on blocked tips; force = f_ref on force-reference trials and f = 0 on free tips.
 """
 from __future__ import annotations
@@ -176,7 +176,7 @@ def static_features(df: pd.DataFrame) -> np.ndarray:
 
 
 def generic_features(df: pd.DataFrame) -> np.ndarray:
-    """Model-error-model basis for the 'unexplained structure' test (gap_methods.md sec. 1, Ljung & Guo):
+    """Model-error-model basis for the 'unexplained structure' test (Ljung & Guo):
     polynomials of V, branch terms, lags, derivatives, time. Inputs only (never the residual)."""
     dt = dt_of(df["t"].to_numpy())
     V = df["V"].to_numpy(float)
@@ -492,7 +492,7 @@ def shrink_table(ev: Evaluator, confirmed: Sequence[str], seed: int = 0, n_boot:
 
 
 def regime_labels(df: pd.DataFrame, est: pd.DataFrame, f_range: float) -> dict:
-    """Operating-regime labels per sample (GAP_DIAGNOSIS.md sec. 1)."""
+    """Operating-regime labels per sample (docs/gap.md)."""
     t = df["t"].to_numpy(float)
     dt = dt_of(t)
     V = df["V"].to_numpy(float)

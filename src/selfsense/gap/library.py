@@ -1,4 +1,4 @@
-"""The library of candidate unmodelled effects (GAP_DIAGNOSIS.md sec. 2; gap_methods.md sec. 2 table).
+"""The library of candidate unmodelled effects (docs/gap.md).
 
 Each :class:`Effect` has
 * ``screen(df, est) -> (N, k)`` residual features used for screening (blocked CV on the held-out residual);

@@ -8,7 +8,7 @@ App. A (``000_18d138f03f1777c3.txt`` eqs. 60-80), so that a refit takes millisec
   model ``H(Q) = c0 + w_0 Q + sum_j s_j max(Q - d_j, 0) + sum_i w_i P_{r_i}[Q]`` with play operators P
   (thesis eqs. 29-32, w_i >= 0) and one-sided superposition terms (eqs. 33-35, signed).
 * ``V_p = V - H(Q)`` (thesis eq. 27).
-* Sensing coefficients by joint least squares over the calibration trials (CALIBRATION_NOTES 1), thesis eq. (52):
+* Sensing coefficients by joint least squares over the calibration trials, thesis eq. (52):
   ``dx = A1 Q + A2 V_p (+ extra)``, ``f = (A3/n_A)(Q - n_A C_p V_p) (+ extra)``; ``regression="full"`` frees the
   force row (eq. 46).
 
@@ -56,7 +56,7 @@ class FastPI:
 
     P: play operators (thesis eqs. 29-32, z0 = 0, w_i >= 0); S: one-sided dead-zone superposition operators
     max(Q - d_j, 0) (thesis eqs. 33-35, free-sign weights) for the saturation a play sum cannot make
-    (CALIBRATION_NOTES 3)."""
+   ."""
 
     r: np.ndarray
     w: np.ndarray

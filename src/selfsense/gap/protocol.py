@@ -1,4 +1,4 @@
-"""Excitation check and acquisition-protocol proposal (GAP_DIAGNOSIS.md sec. 4, "excitation design matters as
+"""Excitation check and acquisition-protocol proposal (docs/gap.md"excitation design matters as
 much as the library").
 
 The slow effects are only separable when the data contain: holds at 0 V (offset drift and dielectric absorption

@@ -1,4 +1,4 @@
-"""Stage-wise gap diagnostic: residuals of each physical stage in the measured signals (GAP_DIAGNOSIS.md sec. 5).
+"""Stage-wise gap diagnostic: residuals of each physical stage in the measured signals (docs/gap.md).
 
 The estimate flows u_cmd -> V (amplifier) -> Q (electrical) -> x (mechanical) -> tip / load. Each stage has a
 residual that needs no truth, measured on the trials where the stage is observed:

@@ -2,8 +2,8 @@
 residual whiteness tests.
 
 Everything here is time-series aware: folds and bootstrap resamples are *contiguous blocks* of samples, never
-random samples (GAP_DIAGNOSIS.md sec. 2: "Screen with blocked cross-validation (contiguous segments, never random
-samples)"; gap_methods.md sec. 1: iid tests are anti-conservative on autocorrelated residuals).
+random samples (docs/gap.md: "Screen with blocked cross-validation (contiguous segments, never random
+samples)": iid tests are anti-conservative on autocorrelated residuals).
 """
 from __future__ import annotations
 

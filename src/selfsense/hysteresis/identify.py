@@ -19,7 +19,7 @@ Procedure (all in non-dimensional units x~ = x / max|x|, y~ = y / max|y|, mapped
    number, so one linear equality fixes the scale. Eqs. (76)-(78) fix sum w_H (|x| - r_H) + m sum w_K (|x| - r_K)
    = |x|; that admits a degenerate minimiser (all weight on the widest play operator, whose output hardly moves,
    and a superposition with near-zero slopes: both sides of E shrink together -- the "collapse" of
-   CALIBRATION_NOTES item 3). ``gauge="range"`` (default) instead fixes the mean slope of S' over the data,
+   docs/method.md). ``gauge="range"`` (default) instead fixes the mean slope of S' over the data,
    (S'(max y) - S'(min y)) / (max y - min y) = 1, so u must traverse the output's range; the solution is then
    rescaled to satisfy eq. (76) so the returned weights are in the thesis' gauge. ``gauge="thesis"`` solves
    with (76)-(78) directly.
@@ -123,7 +123,7 @@ def _solve_qp(R, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, so
         raise ValueError(f"gauge must be 'range' or 'thesis', got {gauge!r}")
     # V(w) = 1/2 mean(E^2) = 1/2 |R w|^2 with R the triangular factor of the regressors (Q = Q_ R / sqrt(N)): the
     # QP is posed on the factor, whose condition number is that of the regressors, not on the Gram matrix Q^T Q,
-    # which squares it (cond 5e4 -> 2.9e9 on a tweezer calibration trial, CALIBRATION_NOTES item 7)
+    # which squares it (cond 5e4 -> 2.9e9 on a tweezer calibration trial, docs/method.md)
     prob = cp.Problem(cp.Minimize(0.5 * cp.sum_squares(R @ w)), cons)
     if solver_opts is None and str(solver).upper() == "CLARABEL":
         # the optimum of V(w) is tiny for good fits (1e-10..1e-16 in non-dimensional units): Clarabel's default

@@ -205,7 +205,7 @@ class ModifiedPI:
     # -- serialisation ------------------------------------------------------------------------------
     def with_dt(self, dt: float) -> "ModifiedPI":
         """The same operator discretised at another sample time ``dt`` [s]: the creep eigenvalues ``a_K`` are in 1/s
-        and stay; only their discrete-time factors 1 - exp(-a dt) change (CALIBRATION_NOTES item 8)."""
+        and stay; only their discrete-time factors 1 - exp(-a dt) change."""
         d = self.to_dict()
         d["dt"] = float(dt)
         return type(self).from_dict(d)

@@ -1,6 +1,6 @@
-"""selfsense.io: reading and validating raw datasets (DATA_FORMAT.md) and writing artefacts atomically.
+"""selfsense.io: reading and validating raw datasets (docs/data_format.md) and writing artefacts atomically.
 
-Knows no physics beyond the unit conversions of DATA_FORMAT.md. See docs/data_format.md.
+Knows no physics beyond the unit conversions of docs/data_format.md. See docs/data_format.md.
 """
 from .atomic import (RawDataWriteError, assert_not_in_raw, atomic_write, atomic_write_bytes, atomic_write_text,
                      dumps_json, parquet_bytes, write_bytes_atomic, write_json_atomic, write_parquet_atomic,

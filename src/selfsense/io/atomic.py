@@ -2,7 +2,7 @@
 
 Every writer here writes to a temporary file in the destination directory, flushes and fsyncs it, then
 ``os.replace``-s it over the target, so a crash or an exception mid-write never leaves a partial file
-(DATA_FORMAT.md: "never a half-written output"). Nothing is ever written under a ``data/raw`` folder.
+(docs/data_format.md: "never a half-written output"). Nothing is ever written under a ``data/raw`` folder.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``selfsense validate DATASET_DIR``: check a raw dataset against the contract (DATA_FORMAT.md).
+"""``selfsense validate DATASET_DIR``: check a raw dataset against the contract (docs/data_format.md).
 
 Exit 0 and one OK line for a valid dataset; otherwise exit 1 and one line per problem (on stdout).
 Physical plausibility warnings (``selfsense.io.plausibility``) are printed as ``warning: ...`` lines and do not

@@ -1,4 +1,4 @@
-"""A whole raw dataset: validation and SI conversion of one trial (DATA_FORMAT.md, thesis eqs. 56-57)."""
+"""A whole raw dataset: validation and SI conversion of one trial (docs/data_format.md, thesis eqs. 56-57)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -97,7 +97,7 @@ def load_dataset(dataset_dir: str | Path) -> Dataset:
 
 
 def to_si(df: pd.DataFrame, rig: Rig, reference: str | None) -> pd.DataFrame:
-    """Canonical raw log -> SI signals (DATA_FORMAT.md; thesis 000_18d138f03f1777c3.txt eqs. 56-57).
+    """Canonical raw log -> SI signals (docs/data_format.md; thesis 000_18d138f03f1777c3.txt eqs. 56-57).
 
     ``V_c = amplifier_gain * u_cmd`` [V], ``V_s = v_shunt / inamp_gain`` [V],
     ``dx_ref = 2 * laser_m_per_v * laser`` [m] (both arms, NaN unless reference = 'displacement'),

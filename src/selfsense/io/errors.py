@@ -1,7 +1,7 @@
 """Problems found in a raw dataset and the exception that carries them.
 
 A :class:`Problem` is one violation of the raw-dataset contract (``docs/data_format.md``,
-``/work/shared/design/DATA_FORMAT.md``); it names the file, the column or key, the row where it
+docs/data_format.md); it names the file, the column or key, the row where it
 applies and what was expected, and prints as exactly one line::
 
     trials.csv: column 'role', row 3: expected 'calibration' or 'validation', found 'calib'

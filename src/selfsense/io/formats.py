@@ -1,6 +1,6 @@
 """Other DAQ log formats: NI TDMS and MATLAB ``.mat`` readers, and ``.mat`` export of estimates.
 
-The readers return the *raw* canonical channels of a trial log (``/work/shared/design/DATA_FORMAT.md``,
+The readers return the *raw* canonical channels of a trial log (docs/data_format.md,
 "Trial log columns"): a float64 DataFrame with a RangeIndex and exactly the columns
 ``t`` [s], ``u_cmd`` [V], ``v_shunt`` [V], ``laser`` [V], ``load_cell`` [V], ``relay`` [0/1], in that order,
 in the file's own units (no ``channel_map.scale`` is applied here; :func:`selfsense.io.read_log` does that,

@@ -1,6 +1,6 @@
 """Trial DAQ logs (CSV or Parquet): reading and checking against the raw-dataset contract.
 
-Canonical channels (DATA_FORMAT.md): ``t`` [s], ``u_cmd`` [V], ``v_shunt`` [V], ``laser`` [V],
+Canonical channels (docs/data_format.md): ``t`` [s], ``u_cmd`` [V], ``v_shunt`` [V], ``laser`` [V],
 ``load_cell`` [V], ``relay`` [0/1]. A rig may map other column names/units onto these through
 ``rig.yaml: channel_map`` (see :mod:`selfsense.io.rig`).
 

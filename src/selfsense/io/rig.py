@@ -1,6 +1,6 @@
 """``rig.yaml``: how the signals of a dataset were acquired and scaled.
 
-Schema (DATA_FORMAT.md, every number SI; unknown keys are errors so that typos never pass silently)::
+Schema (docs/data_format.md, every number SI; unknown keys are errors so that typos never pass silently)::
 
     dataset: tweezer_sim               # must equal the folder name
     sample_rate_hz: 1000.0             # nominal DAQ rate [Hz]
@@ -40,7 +40,7 @@ __all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "par
            "CANONICAL_COLUMNS", "RIG_FILE"]
 
 RIG_FILE = "rig.yaml"
-#: raw DAQ channels of a trial log, in canonical order (DATA_FORMAT.md)
+#: raw DAQ channels of a trial log, in canonical order (docs/data_format.md)
 CANONICAL_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "v_shunt", "laser", "load_cell", "relay")
 FORMATS = ("auto", "csv", "parquet", "tdms", "mat")
 

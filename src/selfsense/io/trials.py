@@ -1,4 +1,4 @@
-"""``trials.csv``: one row per trial log (DATA_FORMAT.md).
+"""``trials.csv``: one row per trial log (docs/data_format.md).
 
 Columns (all required, no others; order free): trial, file, role, tip, object_mm, reference, signal.
 """
@@ -157,7 +157,7 @@ def check_trials(dataset_dir: str | Path) -> tuple[pd.DataFrame | None, list[Pro
 
 
 def load_trials(dataset_dir: str | Path) -> pd.DataFrame:
-    """Load ``trials.csv`` as a DataFrame (columns of DATA_FORMAT.md + ``row``; ``object_mm`` float, NaN
+    """Load ``trials.csv`` as a DataFrame (columns of docs/data_format.md + ``row``; ``object_mm`` float, NaN
     when empty); raise :class:`ContractError` listing all problems."""
     df, probs = check_trials(dataset_dir)
     if probs or df is None:

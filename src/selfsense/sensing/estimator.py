@@ -12,12 +12,12 @@ The method of ``000_18d138f03f1777c3.txt`` (thesis) sec. 4.3 with the on-site ca
   Here ``n_A q`` is the total charge ``Q`` seen by the shunt (thesis: "the charge will be n_A times that of a single
   actuator") and ``C_p`` is the clamped capacitance of ONE actuator, so ``f_tip = (A3 / n_A) (Q - n_A C_p V_p)``.
 * Free-tip calibration of H, thesis eq. (55): ``H(q) = V - Q / (n_A C_p)`` (the convention that folds the piezo
-  displacement term into H; CALIBRATION_NOTES item 4), or the paper's on-site calibration eq. (23):
+  displacement term into H), or the paper's on-site calibration eq. (23):
   ``H(q) = V - (1 - alpha B A_q) q / C_p`` with per-actuator charge ``q = Q / n_A``, ``alpha`` from the catalog
   (blocked force / max voltage), ``B = dx_pzt_free / dx_tip_free`` (paper eq. 20) and ``A_q`` the free-tip
   displacement per unit per-actuator charge [m/C].
-* Regression of A1, A2 (and A3) on *calibration trials only*, jointly over loading conditions
-  (CALIBRATION_NOTES item 1): dx on displacement-reference trials plus dx = 0 on blocked-tip trials; f on
+* Regression of A1, A2 (and A3) on *calibration trials only*, jointly over loading conditions:
+  dx on displacement-reference trials plus dx = 0 on blocked-tip trials; f on
   force-reference trials plus f = 0 on free-tip trials. ``regression="full"`` fits the four free terms of the
   unapproximated eq. (46) instead (A1, A2, B21, B22).
 * Post-processing of thesis sec. 5.2 / Fig. 24: limiting to the physical range, and a sliding DC offset on the
@@ -265,7 +265,7 @@ def _eval_h(model, Q: np.ndarray, dt: float | None = None) -> np.ndarray:
     if hasattr(model, "predict") and hasattr(model, "kind"):
         return np.asarray(model.predict(Q, dt), dtype=float)
     if isinstance(model, GaugedH) and dt is not None and hasattr(model.inner, "with_dt") and model.inner.dt != dt:
-        # creep eigenvalues are in 1/s: evaluate at the trial's own sample time (CALIBRATION_NOTES item 8)
+        # creep eigenvalues are in 1/s: evaluate at the trial's own sample time
         model = GaugedH(model.inner.with_dt(float(dt)), model.sign, model.c)
     if type(model).__name__ == "RIModel":
         return np.asarray(model(np.maximum(Q, 0.0)), dtype=float)
@@ -292,7 +292,7 @@ def _trial_dt(df: pd.DataFrame) -> float:
 
 def integral_v(df: pd.DataFrame) -> np.ndarray:
     """``int_0^t V dtau`` [V s] restarted wherever the relay shorts the leads (like the charge, thesis eq. 57): the
-    charge a leakage conductance g draws through the shunt is ``g * integral_v`` (CALIBRATION_NOTES item 5)."""
+    charge a leakage conductance g draws through the shunt is ``g * integral_v``."""
     from selfsense.signals import charge_from_shunt
 
     V = df["V"].to_numpy(dtype=float)
@@ -868,7 +868,7 @@ class SelfSensingEstimator:
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
         cfg = self.config
-        # --- sensing coefficients, jointly over loading conditions (CALIBRATION_NOTES 1)
+        # --- sensing coefficients, jointly over loading conditions
         Xd, yd, Xf, yf = [], [], [], []
         for tid, row in cal.iterrows():
             df = cal_trials[tid]

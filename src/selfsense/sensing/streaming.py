@@ -5,7 +5,7 @@ The batch pipeline is ``selfsense.stages.ingest`` (raw log -> SI signals, ``V``,
 (``u_cmd`` [V], ``v_shunt`` [V], ``relay`` 0/1, ``t`` [s]) one sample or one block at a time, in one fused numba
 loop per sample:
 
-1. SI conversion (DATA_FORMAT.md): ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``;
+1. SI conversion (docs/data_format.md): ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``;
    actuator voltage ``V = V_c - V_s`` (``000_18d138f03f1777c3.txt`` eq. (56)).
 2. Charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal rule, reset to 0 while ``relay == 1``,
    written exactly as ``selfsense.signals.charge_from_shunt`` does it: a running cumulative sum ``c`` of the

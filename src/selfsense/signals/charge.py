@@ -39,7 +39,7 @@ def relay_offset(V_s, relay) -> float:
     """In-amp/ADC offset [V]: the mean of ``V_s`` over the first contiguous shorted (relay == 1) segment.
 
     While the leads are shorted no charge flows onto the actuators, so whatever ``V_s`` reads there is the
-    offset of the measurement chain (CALIBRATION_NOTES item 5: a 0.3 mV offset integrates to volts' worth of
+    offset of the measurement chain (a 0.3 mV offset integrates to volts' worth of
     charge error). Only the first segment is used: shorting a charged actuator later in a trial makes a
     discharge transient flow through the shunt. Raises :class:`SignalError` when there is no such segment.
     """

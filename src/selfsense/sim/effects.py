@@ -1,7 +1,7 @@
 """Switchable unmodelled effects of the virtual tweezer.
 
 Each effect has ONE magnitude (0 = off) and a documented physical form.  The forms are chosen
-on purpose to differ from the gap diagnostic's library forms (GAP_DIAGNOSIS.md sec. 4): physical
+on purpose to differ from the gap diagnostic's library forms (docs/gap.md): physical
 circuit elements and Prony series with non-log-spaced time constants, not integral-of-V features
 or log-spaced lag banks.  The table in ``docs/simulator.md`` is generated from ``EFFECTS``.
 """

@@ -13,7 +13,7 @@ Physical ranges (per device, uniform unless stated):
 * mechanism (two-port, thesis eqs. 17-21): free-tip stroke at 150 V 4-9 mm (sets the transmission ratio),
   coupling ``F_b S / (n_A alpha V x_free)`` 2-8 % (the share of the actuators' blocked-force x stroke product that
   reaches the tip: it sets the tip-port stiffness and with it how far a blocked tip shifts V_p at equal charge,
-  the signal that force sensing lives on -- CALIBRATION_NOTES item 2; blocked forces then span about
+  the signal that force sensing lives on -- docs/method.md; blocked forces then span about
   0.05-0.6 N), input compliance ratio
   ``k_in_free / (n_A k)`` 0.1-0.4 (how much of the actuators' stroke the mechanism lets through);
 * hysteresis: its swing (peak-to-peak of the hysteretic output on a 0 -> 1 -> 0 charge cycle) 5-18 % of the
@@ -29,7 +29,7 @@ Physical ranges (per device, uniform unless stated):
 
 Presets: ``clean`` (no unmodelled effect except the electrical creep and the chosen hysteresis) and ``drift``
 (charge leakage 1-5 nS, i.e. 0.2-1 GOhm insulation; in-amp offset drift 1-4 uV/s; mechanical creep 2-5 % of the
-elastic strain; CALIBRATION_NOTES: realistic rig magnitudes).
+elastic strain; realistic rig magnitudes).
 """
 from __future__ import annotations
 

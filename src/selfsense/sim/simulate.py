@@ -195,7 +195,7 @@ def simulate_trial(trial: dict, device: DeviceParams | None = None, effects: dic
                    campaign_t0: float = 0.0, contributions: bool = False, effects_defaults: bool = True):
     """Simulate one trial in memory.
 
-    Returns ``(log, truth)``: ``log`` has the DAQ columns of DATA_FORMAT.md (``t, u_cmd, v_shunt,
+    Returns ``(log, truth)``: ``log`` has the DAQ columns of docs/data_format.md (``t, u_cmd, v_shunt,
     laser, load_cell, relay``; the channel of the other reference is NaN); ``truth`` has
     ``t, q, V, V_p, V_H, x_pzt, dx_tip, f_tip`` (SI; q = charge through the shunt since t = 0,
     zero while the relay shorts the leads) plus ``q_act, V_c, dx_ref`` and, if
@@ -290,7 +290,7 @@ def simulate_scenario_in_memory(scenario, seed: int | None = None, contributions
 
 
 def rig_dict(name: str, dev: DeviceParams, fs: float) -> dict:
-    """rig.yaml content (only the keys of DATA_FORMAT.md)."""
+    """rig.yaml content (only the keys of docs/data_format.md)."""
     return {
         "dataset": name,
         "sample_rate_hz": float(fs),
@@ -328,7 +328,7 @@ def write_parquet(df: pd.DataFrame, path: Path, float32: bool = False):
 
 
 def simulate_dataset(scenario, seed: int | None = None, out_dir=None, truth_dir=None, contributions: bool = True):
-    """Write a dataset (DATA_FORMAT.md: rig.yaml, trials.csv, <trial>.parquet) into ``out_dir`` and
+    """Write a dataset (docs/data_format.md: rig.yaml, trials.csv, <trial>.parquet) into ``out_dir`` and
     its truth (``<trial>.parquet`` with TRUTH_COLUMNS + effect columns, manifest.json) into
     ``truth_dir`` (default ``<out_dir>.truth``, beside, never inside).  Both folders are
     replaced atomically (written to a temporary sibling, then renamed)."""

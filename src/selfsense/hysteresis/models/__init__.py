@@ -7,14 +7,14 @@ Every model (scikit-learn style; ``docs/hysteresis.md``):
   the charge circuit's relay establishes, thesis 000_18d138f03f1777c3.txt sec. 5.1.1); ``dt`` [s] is the sample
   time of the data, stored as ``dt_``;
 * ``predict(q, dt=None)`` -> H [V] from the relaxed state, at the sample time ``dt`` (default ``dt_``): creep
-  eigenvalues live in 1/s and are discretised at the evaluation sample time (CALIBRATION_NOTES item 8);
+  eigenvalues live in 1/s and are discretised at the evaluation sample time;
   ``model(q)`` is ``predict(q)``;
 * ``to_dict()`` / ``from_dict(d)`` (plain JSON) and fitted attributes ending in ``_``.
 
 The models linear in their parameters (``linear``, ``pi``, ``preisach``, ``ri``) share :class:`LinearParamH`:
 a design matrix ``[hysteretic basis | u | creep bank | 1]`` on the normalised charge ``u = (q - q_lo) / q_span``,
 solved as a ridge least-squares problem on the column-scaled design augmented by ``sqrt(ridge N) I`` rows (a pivoted
-QR of the design itself, never the Gram matrix ``X^T X``, which squares its condition number: CALIBRATION_NOTES item 7).
+QR of the design itself, never the Gram matrix ``X^T X``, which squares its condition number: docs/method.md).
 Extra columns (``extra``) are fitted jointly and not penalised: the estimator uses them to identify H jointly
 with the force coefficient on blocked-tip trials and with the charge leakage (``selfsense.sensing.core``).
 
@@ -424,7 +424,7 @@ class ModifiedPIH:
         if not rms < rms_lin:
             raise DegenerateFitError(
                 f"modified PI: the QP returned status {rep.get('status')!r} for a fit worse than a straight line "
-                f"({rms:.4g} V RMS vs {rms_lin:.4g} V, in sample): a degenerate fit (CALIBRATION_NOTES item 7)")
+                f"({rms:.4g} V RMS vs {rms_lin:.4g} V, in sample): a degenerate fit")
         self.fit_report_ = dict(rep)
         self.fit_report_.update({"rms_v": rms, "rms_v_linear": rms_lin, "gauge_sign": self.sign_,
                                  "gauge_c": self.c_, "n_creep": int(n_creep), "n_samples": int(len(y))})

@@ -125,7 +125,7 @@ def relaxation_bank(u, dt: float, tau_s) -> np.ndarray:
     """Creep columns ``u - z_j``, ``dz_j/dt = (u - z_j) / tau_j`` discretised exactly at the sample time ``dt`` [s]
     (``z_j(0) = 0``, the relaxed state): Kuhnen's creep operator (thesis 000_18d138f03f1777c3.txt eqs. 38-41) with
     a zero threshold, its eigenvalues ``1 / tau_j`` kept in 1/s so that the model is the same at any sample rate
-    (CALIBRATION_NOTES item 8). Returns (len(u), len(tau_s))."""
+   . Returns (len(u), len(tau_s))."""
     u = np.ascontiguousarray(u, dtype=float)
     cols = [_relax(u, -math.expm1(-dt / float(t))) for t in tau_s]
     return np.column_stack(cols) if cols else np.zeros((u.size, 0))
