@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import os
+import signal
 import subprocess
 import sys
 from importlib import resources
@@ -188,7 +189,17 @@ def main(argv: list[str] | None = None) -> int:
         # one `selfsense run` per directory: a second one would see the first one's outputs as "incomplete" and
         # Snakemake would advise --rerun-incomplete, which is wrong while the first run is alive
         with output_lock(workdir / ".snakemake" / "selfsense-run", what="selfsense run in"):
-            rc = subprocess.call([sys.executable, "-m", "snakemake", *cmd_args], cwd=cwd)
+            # holding this lock, no other selfsense run works here: Snakemake's own locks and incomplete markers
+            # are what an interrupted run (Ctrl-C, a kill) left behind, so they are cleared and what was incomplete
+            # is rerun (a plain `snakemake` started by hand in the same folder is not covered by this lock)
+            stale = _clear_stale_locks(workdir)
+            args = list(cmd_args)
+            if not _has_option(args, ("--rerun-incomplete", "--ri", "--unlock")):
+                args.append("--rerun-incomplete")
+            if stale:
+                print(f"selfsense run: cleared {stale} stale Snakemake lock(s) of an interrupted run; incomplete "
+                      "outputs are made again", file=sys.stderr)
+            rc = _call_snakemake(args, cwd)
     except OutputError:
         print(f"selfsense run: error: another selfsense run is working in {workdir}; wait for it to finish "
               "(do not use --rerun-incomplete or --unlock while it runs)", file=sys.stderr)
@@ -207,6 +218,36 @@ def main(argv: list[str] | None = None) -> int:
             shown = report.relative_to(cwd) if report.is_relative_to(cwd) else report
             print(f"report: {shown}")
     return 0
+
+
+def _clear_stale_locks(workdir: Path) -> int:
+    """Remove Snakemake's lock files under ``workdir/.snakemake/locks`` (call only under the selfsense run lock)."""
+    d = workdir / ".snakemake" / "locks"
+    n = 0
+    if d.is_dir():
+        for f in d.iterdir():
+            if f.is_file():
+                f.unlink()
+                n += 1
+    return n
+
+
+def _call_snakemake(args: list[str], cwd: Path) -> int:
+    """Run Snakemake and wait for it, also on Ctrl-C: the interrupt reaches the child through the terminal's process
+    group, and the parent waits until Snakemake has stopped its jobs and released its locks (a second Ctrl-C is
+    passed on as a terminate)."""
+    proc = subprocess.Popen([sys.executable, "-m", "snakemake", *args], cwd=cwd)
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            try:
+                proc.send_signal(signal.SIGINT)
+                proc.wait(timeout=60)
+            except (KeyboardInterrupt, subprocess.TimeoutExpired):
+                proc.terminate()
+                proc.wait()
+            raise KeyboardInterrupt from None
 
 
 def _rule_errors(results: Path, datasets: list[str], since: float, limit: int = 20) -> list[str]:
