@@ -132,7 +132,8 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
     """`--config on_bad_trial=skip` must reach Snakemake as a config override, not as --configfile (argparse
     abbreviation), the caller's directory is the working directory, and the packaged Snakefile is used."""
     calls = []
-    monkeypatch.setattr(pipeline_cli.subprocess, "call", lambda cmd, cwd=None: calls.append((cmd, cwd)) or 0)
+    monkeypatch.setattr(pipeline_cli, "_call_snakemake",
+                        lambda args, cwd: calls.append(([sys.executable, "-m", "snakemake", *args], cwd)) or 0)
     _bad_copy(tmp_path, "mine")  # a valid copy of the sample dataset (rig.yaml and trials.csv are checked first)
     (tmp_path / "mine.yaml").write_text("datasets: [mine]\n")
     monkeypatch.chdir(tmp_path)

@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
             stale = _clear_stale_locks(workdir)
             args = list(cmd_args)
             if not _has_option(args, ("--rerun-incomplete", "--ri", "--unlock")):
-                args.append("--rerun-incomplete")
+                args.insert(0, "--rerun-incomplete")  # before the caller's options, which reach Snakemake as given
             if stale:
                 print(f"selfsense run: cleared {stale} stale Snakemake lock(s) of an interrupted run; incomplete "
                       "outputs are made again", file=sys.stderr)

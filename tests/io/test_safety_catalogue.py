@@ -513,6 +513,7 @@ def test_run_refuses_bad_config_before_snakemake(tmp_path, capsys, monkeypatch):
     (tmp_path / "data" / "raw" / "ds").mkdir(parents=True)
     (tmp_path / "config.yaml").write_text("datasets: [ds]\nraw_dir: data/raw\nresults_dir: data/raw\n")
     monkeypatch.setattr(subprocess, "call", lambda *a, **k: pytest.fail("snakemake must not start"))
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("snakemake must not start"))
     rc, err = _cli(["run", "--directory", str(tmp_path)], capsys)
     assert rc == 2 and "apart from raw_dir" in err
 
