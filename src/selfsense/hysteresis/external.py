@@ -19,6 +19,7 @@ Run: ``selfsense fit-external [--out FILE.md] [--data-dir DIR] [--fit FILE:X:Y[:
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -29,9 +30,19 @@ from .operators import play_operator
 PROVENANCE_BASELINE = {"smart": (0.38, 1.46), "sine50_1": (2.1, 8.2), "prbn_1": (1.9, 11.1)}
 
 
+#: environment variable naming the folder of external measurements (see :func:`default_data_dir`)
+DATA_ENV = "SELFSENSE_EXTERNAL_DATA"
+
+
 def default_data_dir() -> Path:
-    """``<project>/../shared/data/external`` (the project root sees ``shared/`` one level up)."""
-    return Path(__file__).resolve().parents[3].parent / "shared" / "data" / "external"
+    """The folder of external measurements (sub-folders ``smart_hysteresis``, ``danny_preisach``,
+    ``slac_quadrupole``), named by the environment variable ``SELFSENSE_EXTERNAL_DATA``. These records are not part
+    of the package; without the variable (and without ``--data-dir``) there is no default and the caller says so."""
+    val = os.environ.get(DATA_ENV, "").strip()
+    if not val:
+        raise FileNotFoundError(f"no external data folder: pass --data-dir DIR or set {DATA_ENV}=DIR "
+                                "(a folder with smart_hysteresis/, danny_preisach/, slac_quadrupole/)")
+    return Path(val)
 
 
 def load_smart(data_dir: Path):
@@ -421,7 +432,7 @@ def main(argv=None) -> int:
                                              "and a 10-operator PI. Without --fit/--eval: every pair of the external "
                                              "data folder.")
     ap.add_argument("--out", type=Path, default=None, help="write the markdown table to this file")
-    ap.add_argument("--data-dir", type=Path, default=None, help="external data folder (default ../shared/data/external)")
+    ap.add_argument("--data-dir", type=Path, default=None, help="external data folder (default: $SELFSENSE_EXTERNAL_DATA)")
     ap.add_argument("--fit", default=None, metavar="FILE:X:Y[:T]",
                     help="fit record: CSV/Parquet file and its input, output and optional time columns")
     ap.add_argument("--eval", default=None, metavar="FILE:X:Y[:T]",

@@ -3,7 +3,7 @@
 Subcommands
 -----------
 compare-slac [--data DIR] [--out FILE.md] [--no-precondition]
-    SLAC LCLS-II quadrupole (shared/data/external/slac_quadrupole): MAIN current [A] -> integrated gradient BL [T].
+    SLAC LCLS-II quadrupole (the external data folder's slac_quadrupole/, see ``SELFSENSE_EXTERNAL_DATA``): MAIN current [A] -> integrated gradient BL [T].
     Train on strdat.ru3 (major loop), test on strdat.ru4 (minor loops), and the reverse.
 validate-table [--out FILE.md] [--seed N]
     Table in the style of the RI paper's Table 2 on the virtual single stack of ``ri_dynamics``.
@@ -55,9 +55,12 @@ def parse_slac_report(path) -> dict:
     return {"current": a[:, 0], "sigma_current": a[:, 1], "BL": a[:, 2], "sigma_BL": a[:, 3], "comment": comment}
 
 
-def default_shared() -> Path:
-    """``../shared`` relative to the project root (this file is src/selfsense/hysteresis/ri_cli.py)."""
-    return Path(__file__).resolve().parents[3].parent / "shared"
+def default_slac_dir() -> Path:
+    """``slac_quadrupole`` in the external data folder named by ``SELFSENSE_EXTERNAL_DATA``
+    (:func:`selfsense.hysteresis.external.default_data_dir`)."""
+    from .external import default_data_dir
+
+    return default_data_dir() / "slac_quadrupole"
 
 
 #: regularisation weight used for the SLAC runs (see RIModel.fit / ri.smoothness_rows). NOTE: chosen after looking
@@ -70,7 +73,7 @@ def slac_comparison(data_dir=None, precondition: bool = True, include_pi: bool =
     """Both directions of the SLAC comparison. With ``precondition`` the memory of the RI model before each run
     is that of a completed standardisation cycle 0 -> 165 A -> 0 (both reports start at the remanent BL = 0.034 T
     of that state); without it each run is taken as virgin."""
-    d = Path(data_dir) if data_dir is not None else default_shared() / "data" / "external" / "slac_quadrupole"
+    d = Path(data_dir) if data_dir is not None else default_slac_dir()
     ru3 = parse_slac_report(d / "strdat.ru3")
     ru4 = parse_slac_report(d / "strdat.ru4")
     # the magnet power supply reads a few 0.1 mA below zero at "0 A": clip (one-sided input)
@@ -93,7 +96,7 @@ def slac_comparison(data_dir=None, precondition: bool = True, include_pi: bool =
 def _cmd_compare_slac(argv) -> int:
     ap = argparse.ArgumentParser(prog="selfsense ri compare-slac", allow_abbrev=False,
                                  description="RI vs modified-PI model on the SLAC quadrupole magnet data")
-    ap.add_argument("--data", default=None, help="folder with strdat.ru3/strdat.ru4 (default ../shared/...)")
+    ap.add_argument("--data", default=None, help="folder with strdat.ru3/strdat.ru4 (default: $SELFSENSE_EXTERNAL_DATA/slac_quadrupole)")
     ap.add_argument("--out", default=None, help="also write the Markdown table to this file")
     ap.add_argument("--smooth", type=float, default=SLAC_SMOOTH, help="RI regularisation weight (0 = plain LS)")
     ap.add_argument("--no-precondition", action="store_true",

@@ -6,7 +6,7 @@ falling branch at m on a grid, then least squares for the quartic (15) and the t
 
 ``compare_models`` puts the RI model next to the modified Prandtl-Ishlinskii model of the thesis
 (``selfsense.hysteresis.identify.fit_modified_pi``, imported lazily), a plain PI (10 play operators, non-negative
-least squares, the baseline of shared/data/external/PROVENANCE.md) and a straight line, all with the same split and
+least squares, the baseline of the external records' PROVENANCE.md) and a straight line, all with the same split and
 the same metrics (RMS and max error in % of the test output range).
 """
 from __future__ import annotations
