@@ -2,7 +2,7 @@
 
     python benchmarks/pipeline_speed.py                       # tweezer_sim, --cores 2, cold results
     python benchmarks/pipeline_speed.py --numba-cold          # also an empty numba cache
-    python benchmarks/pipeline_speed.py --out benchmarks/PIPELINE_SPEED.md
+    python benchmarks/pipeline_speed.py --out speed.md          # also write the table to a file
 
 Runs ``snakemake all --cores N`` of the repository's Snakefile (with its workflow profile ``profiles/default``) on
 one bundled dataset in a fresh temporary working directory, so every result is computed again. Reports

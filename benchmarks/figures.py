@@ -1,0 +1,308 @@
+#!/usr/bin/env python
+"""One source for every measured figure that the README and docs/ quote.
+
+    python benchmarks/figures.py            # regenerate benchmarks/FIGURES.md and the figure blocks in README/docs
+    python benchmarks/figures.py --check    # exit 1 (naming the file and block) if any of them is out of date
+
+Every figure is read from a committed benchmark output (never typed by hand): ``benchmarks/RESULTS.json``
+(``benchmarks/run.py``: speed, memory, the cold pipeline and the Table 3 of that run), ``benchmarks/cross_device``
+(``selfsense devices bench``), ``benchmarks/gap_stages`` (``selfsense gap blind``), ``benchmarks/stage_chain``
+(``benchmarks/stage_chain.py``) and ``benchmarks/external`` (``selfsense fit-external``). Each row carries the
+date of its measurement and the command that measures it. ``benchmarks/FIGURES.md`` holds them all; README.md and the
+docs pages hold generated blocks between ``<!-- figures:NAME -->`` and ``<!-- /figures:NAME -->``, which this
+script rewrites. ``tests/test_figures.py`` runs ``--check`` and also refuses figures of these kinds written outside
+the blocks, so that the README, the docs and the benchmarks cannot disagree.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+import statistics
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+#: when each committed benchmark output that records no date of its own was measured (update on re-measuring;
+#: RESULTS.json records its own date)
+DATES = {
+    "cross_device": "2026-11-24",
+    "gap_stages": "2026-11-24",
+    "stage_chain": "2026-11-24",
+    "external": "2026-11-24",
+}
+COMMANDS = {
+    "results": "python benchmarks/run.py --out benchmarks/RESULTS.md",
+    "cross_device": "selfsense devices bench --n 10 --jobs 2 --out benchmarks/cross_device",
+    "gap_stages": "selfsense gap blind --n 1000 --seed 7 --jobs 2 --out benchmarks/gap_stages",
+    "gap_tip": "selfsense gap blind --tip --n 32 --seed 11 --jobs 2 --out benchmarks/gap_stages",
+    "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
+    "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
+    "external": "selfsense fit-external --data-dir DIR --out benchmarks/external/fit_external.md",
+}
+FAMILY = {"preisach": "Preisach", "gpi": "generalised PI", "jiles_atherton": "Jiles-Atherton",
+          "bouc_wen": "Bouc-Wen"}
+BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
+#: the pages that hold figure blocks
+PAGES = ["README.md", "docs/benchmarks.md", "docs/cross_device.md", "docs/gap.md", "docs/hysteresis.md"]
+
+
+class Fig:
+    """One measured figure: what, value (as printed), target, status, source file, command, date."""
+
+    def __init__(self, label, value, target="", status="", source="", command="", date=""):
+        self.label, self.value, self.target, self.status = label, value, target, status
+        self.source, self.command, self.date = source, command, date
+
+    def row(self, with_source: bool = True) -> str:
+        cells = [self.label, self.value, self.target, self.status]
+        if with_source:
+            cells += [f"[{self.source}]({self.source})" if self.source else "", f"`{self.command}`", self.date]
+        return "| " + " | ".join(cells) + " |"
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "**missed**"
+
+
+def _read_json(rel: str) -> dict:
+    p = ROOT / rel
+    if not p.exists():
+        raise SystemExit(f"benchmarks/figures.py: {rel} not found (run: {COMMANDS['results']})")
+    return json.loads(p.read_text())
+
+
+# --------------------------------------------------------------------------------------------------------- sources
+def results_figures() -> dict[str, list[Fig]]:
+    """Speed, memory, pipeline and the bundled Table 3, from benchmarks/RESULTS.json (benchmarks/run.py)."""
+    r = _read_json("benchmarks/RESULTS.json")
+    src, cmd, date = "benchmarks/RESULTS.md", r.get("command", COMMANDS["results"]), r["machine"]["date"][:10]
+    if r.get("quick"):
+        raise SystemExit("benchmarks/figures.py: benchmarks/RESULTS.json is from a --quick run; the quoted figures "
+                         "come from the full run: " + COMMANDS["results"])
+    F = lambda *a, **k: Fig(*a, source=src, command=cmd, date=date, **k)  # noqa: E731
+    a, b, c, d, f = r["a"], r["b"], r["c"], r["d"], r["f"]
+    speed = [
+        F("modified PI operator with creep (15 play, 15 superposition, 15 x 4 creep), one core",
+          f"{a['rate_pkg'] / 1e6:.1f} M samples/s ({a['ratio_pkg']:.0f}x the NumPy reference)",
+          ">= 10 M samples/s and >= 100x", _met(a["ok"])),
+        F("streaming estimator, per-sample `step()`", f"{b['step_us']:.2f} us/sample", "<= 10 us",
+          _met(b["step_us"] <= 10)),
+        F("streaming estimator, block `process()`", f"{b['rate_block'] / 1e6:.1f} M samples/s", ">= 1 M samples/s",
+          _met(b["rate_block"] >= 1e6)),
+        F("stream equal to the batch pipeline", f"{max(b['err_dx'], b['err_f']):.0e} of range", "<= 1e-12",
+          _met(max(b["err_dx"], b["err_f"]) <= 1e-12)),
+        F("QP calibration of a 60,000-sample trial (modified PI)", f"{c['t_total']:.2f} s", "<= 1 s", _met(c["ok"])),
+        F(f"chunked `selfsense estimate` of a {f['n'] / 1e6:.0f} M-sample log", f"peak RSS {f['rss_gb']:.2f} GB",
+          "< 2 GB", _met(f["ok"])),
+    ]
+    pipe, bundled = [], []
+    if d.get("available"):
+        pipe.append(F("cold pipeline on `tweezer_sim`, `--cores 2`, numba cache warm (whole `snakemake` process)",
+                      f"{d['wall_s']:.1f} s wall ({d['snakemake_s']:.1f} s by Snakemake's clock)", "<= 15 s wall",
+                      _met(d["wall_s"] <= 15.0)))
+        t3 = d["table3_rows"]
+        bundled.append(F("Table 3 with the default settings (validation trials), displacement / force",
+                         f"{_pct(t3['displacement'][2])} / {_pct(t3['force'][2])}", "", ""))
+        for row in d["modes_rows"]:
+            bundled.append(F(f"{row[0]}; identified on {row[1]}; H(q) calibration {row[2]}: displacement / force",
+                             f"{_pct(row[3])} / {_pct(row[4])}", "", ""))
+    return {"speed": speed + pipe, "bundled": bundled}
+
+
+def _pct(cell: str) -> str:
+    m = re.search(r"[-0-9.]+", cell)
+    return f"{float(m.group()):.2f} %" if m else cell
+
+
+def cross_device_figures() -> list[Fig]:
+    src = "benchmarks/cross_device/cross_device.csv"
+    rows = list(csv.DictReader((ROOT / src).open()))
+    out = []
+    for r in sorted(rows, key=lambda r: (r["preset"], r["family"])):
+        tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
+        dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
+        out.append(Fig(f"{FAMILY.get(r['family'], r['family'])}, {r['preset']} preset, three-trial calibration "
+                       f"({r['n_devices']} devices, {r['n_failed']} failed): median (p90) displacement / force",
+                       f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
+                       f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
+                       _met(dm <= tgt[0] and fm <= tgt[1]), src, COMMANDS["cross_device"], DATES["cross_device"]))
+    return out
+
+
+def stage_chain_figures() -> list[Fig]:
+    src = "benchmarks/stage_chain/thesis/records.jsonl"
+    recs = [json.loads(x) for x in (ROOT / src).read_text().splitlines() if x.strip()]
+    out = []
+    for fam in sorted({r["family"] for r in recs}):
+        med = {}
+        for p in ("clean", "drift"):
+            v = [r for r in recs if r["family"] == fam and r["preset"] == p]
+            med[p] = (statistics.median(r["displacement_pct"] for r in v),
+                      statistics.median(r["force_pct"] for r in v), len(v))
+        rd, rf = med["drift"][0] / med["clean"][0], med["drift"][1] / med["clean"][1]
+        out.append(Fig(f"{FAMILY.get(fam, fam)}, thesis protocol (two sine calibration trials, {med['clean'][2]} + "
+                       f"{med['drift'][2]} devices): median displacement / force, clean; drift",
+                       f"{med['clean'][0]:.2f} / {med['clean'][1]:.2f} %; {med['drift'][0]:.2f} / "
+                       f"{med['drift'][1]:.2f} % (drift / clean {rd:.2f}, {rf:.2f})", "drift / clean <= 1.3",
+                       _met(rd <= 1.3 and rf <= 1.3), src, COMMANDS["stage_chain"], DATES["stage_chain"]))
+    return out
+
+
+def gap_figures() -> list[Fig]:
+    src = "benchmarks/gap_stages/scores.json"
+    s = json.loads((ROOT / src).read_text())
+    F = lambda *a: Fig(*a, source=src, command=COMMANDS["gap_stages"], date=DATES["gap_stages"])  # noqa: E731
+    out = [
+        F(f"gap diagnostic, blind campaign ({s['n_cases']} cases): family top-1 ({s['n_library_present']} cases)",
+          f"{s['family_top1']:.3f}", ">= 0.95", _met(s["family_top1"] >= 0.95)),
+        F("gap diagnostic: member top-1", f"{s['member_top1']:.3f}", ">= 0.85", _met(s["member_top1"] >= 0.85)),
+        F(f"gap diagnostic: false alarms on effect-free cases ({s['n_effect_free']})",
+          f"{s['false_alarm_rate']:.3f}", "<= 0.05", _met(s["false_alarm_rate"] <= 0.05)),
+        F(f"gap diagnostic: median stage-shrink error ({s['n_shrink']} cases)", f"{s['median_shrink_error']:.3f}",
+          "<= 0.15", _met(s["median_shrink_error"] <= 0.15)),
+        F(f"gap diagnostic: open-set cases flagged unexplained ({s['n_open_present']})",
+          f"{s['open_set_flagged']:.3f}", ">= 0.70", _met(s["open_set_flagged"] >= 0.70)),
+    ]
+    tsrc = "benchmarks/gap_stages/tip_scores.json"
+    t = json.loads((ROOT / tsrc).read_text())
+    out.append(Fig(f"gap diagnostic, tip tier ({t['n_scored']} scored of {t['n']} cases): median relative error of "
+                   "the predicted tip shrink", f"{t['median_tip_shrink_error']:.2f}", "<= 0.25",
+                   _met(t["median_tip_shrink_error"] <= 0.25), tsrc, COMMANDS["gap_tip"], DATES["gap_stages"]))
+    ssrc = "benchmarks/stage_chain/tip/summary.md"
+    txt = (ROOT / ssrc).read_text()
+    m = re.search(r"cases: (\d+);.*?effect named \(top-1\) (\d+)", txt)
+    e = re.search(r"over the (\d+) named cases.*?\*\*([0-9.]+)\*\*", txt, re.S)
+    if m and e:
+        out.append(Fig(f"stage chain, tip tier on the charge link's effects ({m.group(1)} cases, leakage and offset "
+                       "drift): named top-1; median relative error of the predicted tip shrink "
+                       f"({e.group(1)} scored)", f"{m.group(2)} of {m.group(1)}; {float(e.group(2)):.2f}",
+                       "<= 0.25", _met(float(e.group(2)) <= 0.25), ssrc, COMMANDS["stage_tip"],
+                       DATES["stage_chain"]))
+    return out
+
+
+def external_figures() -> list[Fig]:
+    src = "benchmarks/external/fit_external.md"
+    p = ROOT / src
+    if not p.exists():
+        return []
+    out = []
+    for line in p.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 5 or not line.startswith("|") or cells[0] in ("pair",) or set(cells[0]) <= set("-"):
+            continue
+        sel, lin, pi = (float(x.split("/")[0]) for x in cells[2:5])
+        out.append(Fig(f"real record pair {cells[0]}: RMS error of the selected H ({cells[1]}), of a straight line, "
+                       "of a plain PI-10, out of sample", f"{sel:.2f} / {lin:.2f} / {pi:.2f} % of range",
+                       "selected < line and < PI-10", _met(sel < lin and sel < pi), src, COMMANDS["external"],
+                       DATES["external"]))
+    return out
+
+
+def collect() -> dict[str, list[Fig]]:
+    res = results_figures()
+    return {"speed": res["speed"], "bundled": res["bundled"], "cross_device": cross_device_figures(),
+            "stage_chain": stage_chain_figures(), "gap": gap_figures(), "external": external_figures()}
+
+
+TITLES = {"cross_device": "Accuracy across virtual devices (thesis Table 3 per truth family)",
+          "stage_chain": "Accuracy on the thesis protocol, clean and with leakage + offset drift + creep",
+          "bundled": "The bundled virtual tweezer `tweezer_sim`",
+          "gap": "Sim-to-real gap diagnostic (blind campaigns)",
+          "external": "Hysteresis models on real measurements made by others",
+          "speed": "Speed and memory"}
+HEAD = "| figure | measured | target | status |\n|---|---|---|---|"
+HEAD_SRC = "| figure | measured | target | status | source | command | date |\n|---|---|---|---|---|---|---|"
+
+
+def render_block(name: str, figs: dict[str, list[Fig]]) -> str:
+    """The body of the block ``name``: one group's table, or for ``all`` every group in one table (a bold row per
+    group), followed by the command and date of each group's source."""
+    groups = list(TITLES) if name == "all" else [name]
+    for g in groups:
+        if g not in figs:
+            raise SystemExit(f"benchmarks/figures.py: unknown figure block {name!r} (groups: {', '.join(TITLES)})")
+    rows, sources = [HEAD], []
+    for g in groups:
+        if not figs[g]:
+            continue
+        if len(groups) > 1:
+            rows.append(f"| **{TITLES[g]}** | | | |")
+        rows += [f.row(with_source=False) for f in figs[g]]
+        for f in figs[g]:
+            src = f"`{f.command}` ({f.date}; [{f.source}](../{f.source}))"
+            if src not in sources:
+                sources.append(src)
+    lead = ("Generated by `python benchmarks/figures.py` from the benchmark outputs (do not edit by hand); every row's "
+            "source, command and date: [benchmarks/FIGURES.md](../benchmarks/FIGURES.md).")
+    return "\n".join([lead, "", *rows, "", "Measured by:", *[f"- {x}" for x in sources]]) + "\n"
+
+
+def render_figures_md(figs: dict[str, list[Fig]]) -> str:
+    L = ["# Measured figures", "",
+         "Generated by `python benchmarks/figures.py` from the committed benchmark outputs; the README and docs/ quote "
+         "these rows (their blocks are generated by the same script, and `tests/test_figures.py` fails when any of them "
+         "is out of date). Measured on the project's 2-core machine; rates vary with the machine's load.", ""]
+    for g, title in TITLES.items():
+        if not figs.get(g):
+            continue
+        L += [f"## {title}", "", HEAD_SRC]
+        L += [f.row() for f in figs[g]]
+        L.append("")
+    return "\n".join(L)
+
+
+def _fix_links(text: str, page: str) -> str:
+    """Links in a block are written as from a docs/ page (``../benchmarks/...``); make them relative to ``page``."""
+    depth = page.count("/")
+    return text.replace("](../", "](" + "../" * depth)
+
+
+def updated_pages(figs) -> dict[str, str]:
+    """page -> its text with every figure block regenerated."""
+    out = {}
+    for page in PAGES:
+        p = ROOT / page
+        if not p.exists():
+            continue
+        text = p.read_text()
+        new = BLOCK.sub(lambda m: m.group(1) + _fix_links(render_block(m.group("name"), figs), page) + m.group(4),
+                        text)
+        out[page] = new
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="only compare; exit 1 naming what is out of date")
+    ap.add_argument("--root", type=Path, default=None, help="repository root (default: this file's parent's parent)")
+    a = ap.parse_args(argv)
+    global ROOT
+    if a.root is not None:
+        ROOT = a.root.resolve()
+    figs = collect()
+    targets = {"benchmarks/FIGURES.md": _links_for_figures_md(render_figures_md(figs))}
+    targets.update(updated_pages(figs))
+    stale = [k for k, v in targets.items() if not (ROOT / k).exists() or (ROOT / k).read_text() != v]
+    if a.check:
+        for k in stale:
+            print(f"{k}: figure table out of date with the benchmark outputs; run python benchmarks/figures.py",
+                  file=sys.stderr)
+        return 1 if stale else 0
+    for k in stale:
+        (ROOT / k).write_text(targets[k])
+        print(f"wrote {k}")
+    return 0
+
+
+def _links_for_figures_md(text: str) -> str:
+    """FIGURES.md lives in benchmarks/: its source links are relative to that folder."""
+    return text.replace("](../benchmarks/", "](").replace("](benchmarks/", "](")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
