@@ -1,7 +1,7 @@
 """Cross-device accuracy benchmark: thesis Table 3 on many virtual devices of several truth families.
 
 One *device job* (:func:`run_device`) draws a device (:func:`selfsense.sim.families.draw_device`), simulates its
-trials into a temporary dataset folder (the DATA_FORMAT contract, exactly what a user would record), runs the
+trials into a temporary dataset folder (the data contract of docs/data_format.md, exactly what a user would record), runs the
 pipeline's own stages in process (ingest -> H(q) calibration -> coefficient regression -> estimation -> scoring,
 same configuration as ``config.yaml``) and returns one record: Table 3 on the validation trials, the selected
 H(q) model and its fit diagnostics. :func:`aggregate` turns records into the per-family / per-preset table
