@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     lines = [f"# Accuracy limits on `{dataset}` (validation mean, % of range)", "",
              f"Command: `python benchmarks/accuracy_limits.py --dataset {args.dataset} --out {args.out}`; "
              f"measured {datetime.date.today().isoformat()}. `default` is the pipeline's default estimator "
-             "(config.yaml), the others the thesis' modified PI and the RI model of the third seed.", "",
+             "(config.yaml), `modified_pi` and `ri` are `SensingConfig(h_model=...)` with every other setting at its default (joint identification on all calibration trials, drift compensation where supported), so they differ from the thesis-method rows of the modes table.", "",
              "| H(q) model | variant | displacement | force |", "|---|---|---|---|"]
     herr_lines = ["", "| H(q) model | free-tip trial | role | H error, V RMS |", "|---|---|---|---|"]
     # the same scenario re-simulated with the default effects off
