@@ -44,9 +44,9 @@ def sensing_config(config: Mapping[str, Any]) -> SensingConfig:
 #: the pipeline's sample budget per trial (config max_trial_samples): 10 min at 10 kHz, measured below 2 GB per job
 #: by benchmarks/memory_pipeline.py (benchmarks/MEMORY.md)
 MAX_TRIAL_SAMPLES = 6_000_000
-#: compare_modes evaluates four estimators per trial, two of them RI models (about 270 B more per sample than the
-#: modified PI, benchmarks/MEMORY.md):
-#: longer validation trials are left out of that secondary table, with a note in it
+#: compare_modes evaluates six estimators per trial (three H(q) identifications x two calibration modes), two of
+#: them RI models (about 270 B more per sample than the modified PI, benchmarks/MEMORY.md): longer validation
+#: trials are left out of that secondary table, with a note in it
 COMPARE_MAX_SAMPLES = 2_000_000
 
 
@@ -191,7 +191,7 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     rig = sio.load_rig(dataset_dir)
     meta = _meta(dataset_dir)
     # memory bounded by the longest trial, not the dataset: calibration trials stay loaded (the fits need them),
-    # the four estimators are fitted first, then every other trial is read once, estimated by each and scored,
+    # the six estimators are fitted first, then every other trial is read once, estimated by each and scored,
     # keeping only its error rows; Arrow's buffers come from the system allocator so that a freed trial is
     # returned to the OS instead of being cached (benchmarks/MEMORY.md)
     import gc
