@@ -288,6 +288,11 @@ def main(argv=None) -> int:
     targets = {"benchmarks/FIGURES.md": _links_for_figures_md(render_figures_md(figs))}
     targets.update(updated_pages(figs))
     stale = [k for k, v in targets.items() if not (ROOT / k).exists() or (ROOT / k).read_text() != v]
+    shot = _screenshot_problem()
+    if shot:
+        print(shot, file=sys.stderr)
+        if a.check:
+            return 1
     if a.check:
         for k in stale:
             print(f"{k}: figure table out of date with the benchmark outputs; run python benchmarks/figures.py",
@@ -297,6 +302,21 @@ def main(argv=None) -> int:
         (ROOT / k).write_text(targets[k])
         print(f"wrote {k}")
     return 0
+
+
+def _screenshot_problem() -> str:
+    """The report screenshot in docs/img must show the Table 3 of the current default (RESULTS.json's pipeline run);
+    its sidecar JSON is written with it by benchmarks/screenshot.py."""
+    side = ROOT / "docs" / "img" / "report_tweezer_sim_top.json"
+    d = _read_json("benchmarks/RESULTS.json").get("d", {})
+    if not d.get("available"):
+        return ""
+    want = {k: d["table3_rows"][k][2] for k in ("displacement", "force")}
+    have = json.loads(side.read_text())["table3_percent_of_range"] if side.exists() else None
+    if have != want:
+        return (f"docs/img/report_tweezer_sim_top.png shows Table 3 {have}, the current default gives {want}: run "
+                "selfsense run --cores 2 && python benchmarks/screenshot.py")
+    return ""
 
 
 def _links_for_figures_md(text: str) -> str:

@@ -67,3 +67,13 @@ def test_check_fails_when_a_benchmark_output_changes(tmp_path):
     r = _check(tmp_path)
     assert r.returncode == 1
     assert "README.md" in r.stderr and "benchmarks/FIGURES.md" in r.stderr
+
+
+def test_check_fails_when_the_report_screenshot_is_of_another_default(tmp_path):
+    for rel in ("README.md", "docs", "benchmarks"):
+        src = ROOT / rel
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, tmp_path / rel)
+    side = tmp_path / "docs" / "img" / "report_tweezer_sim_top.json"
+    side.write_text(json.dumps({"table3_percent_of_range": {"displacement": "9.05 %", "force": "10.78 %"}}))
+    r = _check(tmp_path)
+    assert r.returncode == 1 and "report_tweezer_sim_top.png" in r.stderr
