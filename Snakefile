@@ -31,11 +31,6 @@ include: "workflow/rules/ri.smk"
 include: "workflow/rules/devices.smk"
 
 
-# Cluster groups must not meet the checkpoint (docs/scale_out.md): checked before the first job runs.
-onstart:
-    check_cluster_groups(workflow)
-
-
 rule all:
     default_target: True
     input:

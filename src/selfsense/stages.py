@@ -89,8 +89,50 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
     return summary
 
 
-def ingest(dataset_dir: str | Path, trial: str, out_parquet: str | Path) -> pd.DataFrame:
-    """Raw DAQ log -> SI signals with actuator voltage and charge (thesis eqs. 56-57)."""
+#: Parquet schema metadata key of a skip placeholder: a trial that failed validation with ``on_bad_trial: skip``
+#: still has its per-trial files (the DAG is fixed before any job runs: no checkpoint), each an empty table whose
+#: metadata holds the reason; :func:`by_trial` leaves such files out of every dataset-level stage
+SKIPPED_KEY = b"selfsense_skipped"
+
+
+def write_skipped(path: str | Path, trial: str, reason: str) -> Path:
+    """A skip placeholder for ``trial`` at ``path`` (empty Parquet table, the reason in its schema metadata)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table({"t": pa.array([], pa.float64())}).replace_schema_metadata(
+        {SKIPPED_KEY: f"trial {trial!r} {reason}".encode()})
+    with sio.atomic_write(path, "wb") as fh:
+        pq.write_table(table, fh)
+    return Path(path)
+
+
+def skipped_reason(path: str | Path) -> str | None:
+    """The reason if ``path`` is a skip placeholder (:func:`write_skipped`), else None (reads the footer only)."""
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if p.suffix != ".parquet" or not p.exists():
+        return None
+    meta = pq.read_schema(p).metadata or {}
+    r = meta.get(SKIPPED_KEY)
+    return r.decode() if r is not None else None
+
+
+def failed_trials(validation_json: str | Path) -> dict[str, list]:
+    """Trials that failed validation and are left out (``on_bad_trial: skip``), from ``validation.json``."""
+    import json
+
+    return dict(json.loads(Path(validation_json).read_text()).get("failed", {})) if validation_json else {}
+
+
+def ingest(dataset_dir: str | Path, trial: str, out_parquet: str | Path,
+           validation_json: str | Path | None = None) -> pd.DataFrame | None:
+    """Raw DAQ log -> SI signals with actuator voltage and charge (thesis eqs. 56-57). A trial that
+    ``validation_json`` lists as failed (``on_bad_trial: skip``) gets a skip placeholder instead."""
+    if validation_json is not None and trial in failed_trials(validation_json):
+        write_skipped(out_parquet, trial, "failed validation and is left out (on_bad_trial: skip)")
+        return None
     rig = sio.load_rig(dataset_dir)
     df = prepare_trial(sio.trial_signals(dataset_dir, trial, rig=rig), rig)  # a fresh frame, RangeIndex
     sio.write_parquet_atomic(df, out_parquet, columns=SIGNAL_COLUMNS)  # no copy of the frame (sample budget)
@@ -150,7 +192,14 @@ def load_estimator(dataset_dir: str | Path, model_json: str | Path) -> SelfSensi
 
 def estimate(dataset_dir: str | Path, signal_path: str | Path, model_json: str | Path,
              out_parquet: str | Path, full_out: str | Path | None = None) -> pd.DataFrame:
-    """Estimate tip displacement and force of one trial; writes the contract columns ``t, dx_hat, f_hat, dx_ref, f_ref``."""
+    """Estimate tip displacement and force of one trial; writes the contract columns ``t, dx_hat, f_hat, dx_ref, f_ref``.
+    A skipped trial's signals (a placeholder) give placeholders."""
+    why = skipped_reason(signal_path)
+    if why is not None:
+        for p in (out_parquet, full_out):
+            if p is not None:
+                write_skipped(p, Path(signal_path).stem, why.split(" ", 2)[-1])
+        return None
     est = load_estimator(dataset_dir, model_json)
     sig = pd.read_parquet(signal_path, columns=_ESTIMATE_INPUTS)
     out = est.estimate(sig)
@@ -358,6 +407,14 @@ def export_matlab(dataset_dir: str | Path, trial: str, signals: str | Path, inte
     """One trial's results as MATLAB ``.mat`` and CSV (selfsense.report.export.export_trial)."""
     from selfsense.report.export import export_trial
 
+    why = skipped_reason(signals)
+    if why is not None:  # a skipped trial: files that say so (a .mat with one string variable, a one-line CSV)
+        from scipy.io import savemat
+
+        sio.write_text_atomic(f"# {why}\n", out_csv)
+        with sio.atomic_write(out_mat, "wb") as fh:
+            savemat(fh, {"skipped": why})
+        return
     export_trial(dataset_dir, trial, signals, internals, model_json, out_mat=out_mat, out_csv=out_csv)
 
 
@@ -489,8 +546,9 @@ class logged:
 
 
 def by_trial(paths) -> dict[str, str]:
-    """Map a list of ``.../<trial>.parquet`` paths to {trial: path}."""
-    return {Path(p).stem: str(p) for p in paths}
+    """Map a list of ``.../<trial>.parquet`` paths to {trial: path}, leaving out skip placeholders (trials that
+    failed validation with ``on_bad_trial: skip``, :func:`write_skipped`)."""
+    return {Path(p).stem: str(p) for p in paths if skipped_reason(p) is None}
 
 
 #: the pipeline rules that run inside the Snakemake process (``run:``), by rule name: (input, output, params,
@@ -499,7 +557,7 @@ def by_trial(paths) -> dict[str, str]:
 _JOBS = {
     "validate_dataset": lambda i, o, p, w: validate(p.dataset_dir, o[0], p.on_bad_trial,
                                                     int(getattr(p, "max_trial_samples", MAX_TRIAL_SAMPLES))),
-    "ingest": lambda i, o, p, w: ingest(p.dataset_dir, w.trial, o[0]),
+    "ingest": lambda i, o, p, w: ingest(p.dataset_dir, w.trial, o[0], i.validation),
     "calibrate_hysteresis": lambda i, o, p, w: calibrate(p.dataset_dir, by_trial(i.signals), p.config, o[0]),
     "regress_coefficients": lambda i, o, p, w: regress(p.dataset_dir, by_trial(i.signals), i.hysteresis, o[0]),
     "estimate": lambda i, o, p, w: estimate(p.dataset_dir, i.signals, i.model, o.estimate, full_out=o.internals),

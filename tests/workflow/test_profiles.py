@@ -1,12 +1,8 @@
-"""Cluster profiles and the checkpoint: no pipeline job may run in a group job.
-
-The pipeline's DAG holds the checkpoint validate_dataset. In Snakemake 9 the DAG update after a checkpoint
-re-forms the group jobs from cached GroupJob objects that earlier merges changed in place without redoing their
-job order, so a group job can lose part of its jobs and the run stops with "KeyError: estimate" in
-dag.update_ready, or not, depending on set order (it stopped the SLURM run of test_cluster once with the stage
-groups prep/fit/post). The shipped profiles therefore group only gap_scenario (target gap_benchmark, no
-checkpoint), and the workflow refuses any other cluster run that groups jobs while the checkpoint is pending.
-"""
+"""Cluster profiles: the pipeline's per-trial jobs run in group jobs, which needs a DAG that is fixed before any job
+runs. The pipeline holds no checkpoint (a trial that fails validation with on_bad_trial=skip keeps its per-trial
+files as skip placeholders): in Snakemake 9 the DAG update after a checkpoint re-forms group jobs from cached
+GroupJob objects and can lose jobs ("KeyError: estimate" in dag.update_ready), which is why the profiles could not
+group pipeline rules while validate_dataset was a checkpoint."""
 from __future__ import annotations
 
 import subprocess
@@ -17,7 +13,8 @@ import yaml
 from smk_workdir import ROOT, snakemake_cmd, workdir
 
 PROFILES = sorted((ROOT / "workflow" / "profiles").glob("*/config.yaml"))
-GROUPABLE = {"gap_scenario"}
+#: rules the shipped profiles group (per-trial jobs, and the gap campaign's scenarios)
+GROUPED = {"ingest", "estimate", "gap_scenario"}
 
 
 def _snakemake(wd: Path, targets: list[str], args: list[str]) -> subprocess.CompletedProcess:
@@ -35,12 +32,14 @@ def test_profiles_exist():
 
 
 @pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.parent.name)
-def test_profiles_group_only_checkpoint_free_rules(profile):
+def test_profiles_group_the_per_trial_jobs(profile):
     groups = _groups(profile)
-    assert set(groups) <= GROUPABLE, f"{profile}: groups {sorted(set(groups) - GROUPABLE)} meet the checkpoint"
+    assert set(groups) == GROUPED, f"{profile}: groups {sorted(groups)}"
+    assert groups["ingest"] != groups["estimate"], "ingest and estimate in one group would chain them per trial"
     cfg = yaml.safe_load(profile.read_text())
     components = dict(item.split("=", 1) for item in cfg.get("group-components", []))
-    assert set(components) <= set(groups.values()), f"{profile}: group-components for a group no rule is in"
+    assert set(components) == set(groups.values()), f"{profile}: group-components {components} vs groups {groups}"
+    assert all(int(v) > 1 for v in components.values()), components
 
 
 def test_rules_declare_no_group():
@@ -50,32 +49,16 @@ def test_rules_declare_no_group():
             assert not line.strip().startswith("group:"), f"{smk.name}:{n}: {line.strip()}"
 
 
-def test_gap_benchmark_dag_holds_no_checkpoint(tmp_path):
-    """The premise of grouping gap_scenario: its target's DAG never meets validate_dataset."""
-    proc = _snakemake(tmp_path, ["gap_benchmark"], ["-n", "--cores", "1"])
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    out = proc.stdout + proc.stderr
-    assert "gap_scenario" in out
-    assert "validate_dataset" not in out and "checkpoint" not in out.lower(), out[-3000:]
-
-
-def test_cluster_run_grouping_pipeline_rules_is_refused(tmp_path):
-    """The old stage groups, given on the command line, stop the run before any job with a clear error."""
+def test_pipeline_dag_holds_no_checkpoint_and_the_profile_forms_group_jobs(tmp_path):
+    """A dry run with a cluster profile plans every trial's ingest and estimate before validation has run, in group
+    jobs of the profile's groups, and meets no checkpoint."""
     pytest.importorskip("snakemake_executor_plugin_cluster_generic")
-    proc = _snakemake(tmp_path, [], ["--profile", str(ROOT / "workflow/profiles/cluster-generic"),
-                                 "--groups", "ingest=prep", "estimate=fit", "--group-components", "prep=1000"])
+    proc = _snakemake(tmp_path, [], ["-n", "--profile", str(ROOT / "workflow/profiles/cluster-generic")])
     out = proc.stdout + proc.stderr
-    assert proc.returncode != 0, out[-3000:]
-    assert "ingest" in out and "checkpoint validate_dataset" in out and "docs/scale_out.md" in out, out[-3000:]
-    assert not (tmp_path / "results" / "sample").exists(), "a job ran before the refusal"
-    assert not list((tmp_path / ".fakecluster").glob("*.args")), "a job was submitted before the refusal"
-
-
-def test_gap_benchmark_beside_the_pipeline_is_refused(tmp_path):
-    """gap_scenario grouped by the shipped profile, but requested with a dataset target: the checkpoint is in."""
-    pytest.importorskip("snakemake_executor_plugin_cluster_generic")
-    proc = _snakemake(tmp_path, ["gap_benchmark", "all"], ["--profile", str(ROOT / "workflow/profiles/cluster-generic")])
-    out = proc.stdout + proc.stderr
-    assert proc.returncode != 0, out[-3000:]
-    assert "gap_scenario" in out and "invocation of its own" in out, out[-3000:]
-    assert not (tmp_path / "results").exists(), "a job ran before the refusal"
+    assert proc.returncode == 0, out[-3000:]
+    assert "checkpoint" not in out.lower(), out[-3000:]
+    assert "Group job trials_in" in out and "Group job trials_out" in out, out[-3000:]
+    n_trials = len((ROOT / "data" / "raw" / "sample" / "trials.csv").read_text().strip().splitlines()) - 1
+    for rule in ("ingest", "estimate"):
+        row = [ln for ln in out.splitlines() if ln.split()[:1] == [rule]]
+        assert row and int(row[-1].split()[-1]) == n_trials, (rule, row)

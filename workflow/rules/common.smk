@@ -1,9 +1,7 @@
 # Shared settings and functions of the workflow (functions live here only, as snakemake --lint asks).
 # Dataset and trial lists are read through selfsense.io, so a bad trials.csv fails with a clear message.
-import json
 import os
 
-from snakemake.exceptions import WorkflowError
 
 from selfsense import io as sio
 from selfsense import stages
@@ -74,11 +72,11 @@ def trials_table(dataset):
 
 
 def all_trials(dataset):
-    """Trials that passed validation (checkpoint validate_dataset; with on_bad_trial=skip a bad validation
-    trial is left out and listed as failed in the report)."""
-    path = checkpoints.validate_dataset.get(dataset=dataset).output[0]
-    with open(path) as fh:
-        return list(json.load(fh)["trials"])
+    """Every trial of trials.csv. The DAG is fixed before any job runs (no checkpoint, so cluster profiles may group
+    jobs): a trial that fails validation with on_bad_trial=skip still has its per-trial files, each a skip
+    placeholder (selfsense.stages.write_skipped) that every dataset-level stage leaves out (stages.by_trial); the
+    report lists it under "Failed trials"."""
+    return list(trials_table(dataset).index)
 
 
 def calibration_trials(dataset):
@@ -152,27 +150,4 @@ def ri_main(args, log):
     if rc:
         raise RuntimeError(
             f"selfsense ri {' '.join(args)} exited with {rc} (see {log})"
-        )
-
-
-def check_cluster_groups(wf):
-    """Refuse a cluster run that puts jobs into group jobs while the checkpoint validate_dataset is still to run.
-
-    In Snakemake 9 the DAG update after a checkpoint re-forms the group jobs from cached GroupJob objects that
-    earlier merges changed in place without redoing their job order, so a group job can lose part of its jobs:
-    the run stops with "KeyError: <rule>" in dag.update_ready, or not, depending on set order (seen with the
-    stage groups prep/fit/post; docs/scale_out.md, "Why the pipeline's rules are not grouped"). The shipped
-    profiles group only gap_scenario, whose target gap_benchmark has no checkpoint in its DAG.
-    """
-    if getattr(wf, "local_exec", True):
-        return  # local runs ignore groups
-    dag = wf.dag
-    grouped = sorted({j.rule.name for j in dag.needrun_jobs() if j.group is not None})
-    pending = sorted({j.rule.name for j in dag.checkpoint_jobs})
-    if grouped and pending:
-        raise WorkflowError(
-            f"cluster groups: rule(s) {', '.join(grouped)} are grouped in a run whose DAG still holds the "
-            f"checkpoint {', '.join(pending)}; Snakemake's group jobs can lose jobs at that checkpoint's DAG "
-            "update (docs/scale_out.md). Remove these rules from --groups / the profile's groups: (the shipped "
-            "profiles group only gap_scenario), or run gap_benchmark in an invocation of its own."
         )

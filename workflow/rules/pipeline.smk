@@ -4,7 +4,7 @@
 # own. Heavy rules with plotting use `script:` and run in a process of their own.
 
 
-checkpoint validate_dataset:
+rule validate_dataset:
     input:
         raw_inputs,
     output:
