@@ -53,7 +53,7 @@ MIN_HOLD_S = 0.5
 def leak_column(V: np.ndarray, dt: float) -> np.ndarray:
     """``int_0^t V dtau`` [V s] by the trapezoidal rule of the charge integral (thesis eq. 57): the charge a
     leakage conductance g draws through the shunt is ``g * leak_column(V, dt)``."""
-    from selfsense.sensing.core import trapezoid_increment
+    from selfsense.signals.kernels import trapezoid_increment
 
     V = np.asarray(V, float)
     if len(V) == 0:

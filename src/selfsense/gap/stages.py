@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from selfsense.sensing.core import shunt_current, trapezoid_increment
+from selfsense.signals.kernels import shunt_current, trapezoid_increment
 
 __all__ = ["StageSignals", "stage_signals", "prepare_signals", "MEMBERS", "STAGES", "diagnose_stages",
            "stage_residuals", "GramCV"]

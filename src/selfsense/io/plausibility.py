@@ -213,7 +213,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
     # integrate over the first connected stretch only (the charge restarts at every re-short)
     a = first_rel
     b = int(next((s for s, _ in later), n))
-    from selfsense.sensing.core import shunt_current, trapezoid_increment   # eq. (57), written once
+    from selfsense.signals.kernels import shunt_current, trapezoid_increment   # eq. (57), written once
 
     tt, i_s = t[a:b], shunt_current(V_s[a:b], off, rig.shunt_resistance_ohm)
     q = np.concatenate(([0.0], np.cumsum(trapezoid_increment(i_s[:-1], i_s[1:], np.diff(tt)))))

@@ -8,8 +8,9 @@ the streaming kernel inlines, and the NumPy functions below evaluate the very sa
 (``kernel.py_func``) on arrays, elementwise and in the same order, so batch and streaming round alike.
 
 * eq. (57): charge from the shunt voltage, ``Q = (1/R) int (V_s - offset) dt``: shunt current
-  :func:`_shunt_current`, trapezoidal increment :func:`_trapezoid_increment` (used by
-  :func:`selfsense.signals.charge_from_shunt`, re-exported here, and by the streaming integrator);
+  :func:`_shunt_current`, trapezoidal increment :func:`_trapezoid_increment`, defined in
+  :mod:`selfsense.signals.kernels` beside :func:`selfsense.signals.charge_from_shunt` (the layer below) and
+  re-exported here for the streaming integrator;
 * eq. (27): ``V_p = V - V_H`` -> :func:`piezo_voltage`;
 * eq. (55): H(q) calibration target on a free tip, ``V - slope Q`` -> :func:`h_target` (``slope = 1 / (n_A C_p)``;
   paper eq. (23): ``slope = (1 - alpha B A_q) / (n_A C_p)``);
@@ -27,24 +28,14 @@ import numpy as np
 from numba import njit
 
 from selfsense.signals import charge_from_shunt  # noqa: F401  (eq. 57, re-exported)
+from selfsense.signals.kernels import (_shunt_current, _trapezoid_increment, shunt_current,  # noqa: F401
+                                       trapezoid_increment)  # eq. (57), defined with the charge integration
 
 __all__ = ["charge_from_shunt", "piezo_voltage", "h_target", "tip_displacement", "tip_force", "force_regressor",
            "force_coefficients", "shunt_current", "trapezoid_increment"]
 
 
 # ---- scalar kernels (numba, inlined by the streaming kernel); the NumPy functions call their py_func ----------
-@njit(inline="always")
-def _shunt_current(v_s, offset, R):
-    """Current through the shunt [A], ``(V_s - offset) / R`` (thesis eq. 57, the integrand)."""
-    return (v_s - offset) / R
-
-
-@njit(inline="always")
-def _trapezoid_increment(i_prev, i_k, h):
-    """Charge added over one sample [C], trapezoidal rule ``0.5 (i_k + i_{k-1}) (t_k - t_{k-1})`` (thesis eq. 57)."""
-    return 0.5 * (i_k + i_prev) * h
-
-
 @njit(inline="always")
 def _piezo_voltage(v, v_h):
     """``V_p = V - V_H`` [V] (thesis eq. 27)."""
@@ -76,16 +67,6 @@ def _f(x) -> np.ndarray:
 
 
 # ---- NumPy functions ---------------------------------------------------------------------------------------------
-def shunt_current(V_s, offset: float, R: float) -> np.ndarray:
-    """Shunt current ``(V_s - offset) / R`` [A] (thesis eq. 57)."""
-    return _shunt_current.py_func(_f(V_s), offset, R)
-
-
-def trapezoid_increment(i_prev, i_k, h) -> np.ndarray:
-    """Charge increments [C] of the trapezoidal rule, ``0.5 (i_k + i_{k-1}) h`` (thesis eq. 57)."""
-    return _trapezoid_increment.py_func(_f(i_prev), _f(i_k), h)
-
-
 def piezo_voltage(V, V_H) -> np.ndarray:
     """``V_p = V - V_H`` [V] (thesis eq. 27: the voltage across the linear part of the Goldfarb-Celanovic model)."""
     return _piezo_voltage.py_func(_f(V), _f(V_H))

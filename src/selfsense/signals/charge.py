@@ -94,7 +94,7 @@ def charge_from_shunt(t, V_s, relay, R: float, offset: str | float | None = "rel
     if t.size == 0:
         return np.zeros(0), off
     # the integrand and the trapezoidal increment: the definitions the streaming integrator inlines too
-    from selfsense.sensing.core import shunt_current, trapezoid_increment
+    from .kernels import shunt_current, trapezoid_increment
 
     i = shunt_current(V_s, off, R)  # current [A]
     inc = np.zeros_like(t)
