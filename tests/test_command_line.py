@@ -44,8 +44,8 @@ def _collect_parsers(monkeypatch) -> list[argparse.ArgumentParser]:
 
 @pytest.mark.parametrize("argv", [
     ["init", "--help"], ["validate", "--help"], ["simulate", "--help"], ["estimate", "--help"],
-    ["export", "--help"], ["gap", "diagnose", "--help"], ["gap", "benchmark", "--help"],
-    ["gap", "scenario", "--help"], ["gap", "aggregate", "--help"], ["gap", "calibrate", "--help"],
+    ["export", "--help"], ["gap", "diagnose", "--help"], ["gap", "blind", "--help"],
+    ["gap", "blind-calibrate", "--help"],
     ["ri", "compare-slac", "--help"], ["ri", "validate-table", "--help"], ["fit-external", "--help"],
 ])
 def test_every_option_has_help_and_no_abbreviation(argv, monkeypatch, capsys):

@@ -1,13 +1,14 @@
 """Excitation check and acquisition-protocol proposal (docs/gap.md)."""
 import pytest
 
-from selfsense.gap.benchmark import simulate_device_case
+from selfsense.gap.blindsim import simulate_family_case
 from selfsense.gap.protocol import ELEMENTS, excitation_check, proposal
 
 
 @pytest.fixture(scope="module")
 def bench_case():
-    return simulate_device_case({}, 5, 10.0, 400.0)
+    """An effect-free blind-check case (the diagnostic protocol of selfsense.gap.blindsim.device_scenario)."""
+    return simulate_family_case("preisach", 5, {}, 5)
 
 
 def test_benchmark_scenarios_contain_the_whole_protocol(bench_case):

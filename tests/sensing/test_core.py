@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from selfsense.gap.model import FastSensingEstimator
+from selfsense.gap.standin import FastSensingEstimator
 from selfsense.sensing.core import force_coefficients, force_regressor, tip_force
 from selfsense.sensing.streaming import SelfSensingStream
 from selfsense.signals import charge_from_shunt

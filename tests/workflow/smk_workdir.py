@@ -19,7 +19,7 @@ def workdir(path: Path, gap: dict | None = None) -> Path:
     path.mkdir(parents=True, exist_ok=True)
     cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
     cfg.update(datasets=[DATASET], raw_dir=str(RAW), results_dir="results")
-    cfg["gap"] = dict(cfg.get("gap") or {}, enabled=False, **(gap or {}))
+    cfg["gap"] = {**(cfg.get("gap") or {}), "enabled": False, **(gap or {})}
     (path / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     if not (path / "cluster").exists():
         (path / "cluster").symlink_to(ROOT / "cluster")

@@ -26,7 +26,7 @@ START = ROOT / "cluster" / "start_local_slurm.sh"
 STOP = ROOT / "cluster" / "stop_local_slurm.sh"
 STATE = Path(os.environ.get("SELFSENSE_SLURM_STATE", "/tmp/selfsense-slurm"))
 #: artefacts that must be identical between the local and the cluster run
-COMPARED = ("tables/*.csv", "model/*.json", "estimates/*.parquet")
+COMPARED = ("tables/*.csv", "model/*.json", "estimates/*.parquet", "gap/*.csv")
 #: fit-report keys that hold wall-clock durations (not results; see test_cluster_results_byte_identical_to_local)
 WALL_CLOCK_KEYS = ("seconds",)
 
@@ -115,18 +115,16 @@ def _hashes(results: Path) -> dict[str, str]:
 def runs(engine, tmp_path_factory, request):
     if not (RAW / DATASET / "trials.csv").exists():
         pytest.fail(f"{RAW / DATASET} is missing: the bundled sample dataset must be committed")
-    local = workdir(tmp_path_factory.mktemp("local"))
-    remote = workdir(tmp_path_factory.mktemp(engine["kind"]))
-    gap = _gap_campaign_start(engine, tmp_path_factory)
-    if "proc" in gap:  # never leave the campaign running (before the engine's finalizer stops the daemons)
-        request.addfinalizer(lambda: gap["proc"].poll() is None and (gap["proc"].kill(), gap["proc"].wait()))
+    # the whole pipeline, gap diagnostic included (its rule runs as a cluster job of its own)
+    local = workdir(tmp_path_factory.mktemp("local"), gap={"enabled": True})
+    remote = workdir(tmp_path_factory.mktemp(engine["kind"]), gap={"enabled": True})
     # all at once: the cluster runs spend most of their time in job start-up and status polling
     p_remote = _snakemake(remote, ["all"], ["--profile", str(engine["profile"])])
     p_local = _snakemake(local, ["all"], ["--cores", "1"])
     out_local = _finish(p_local, "local run")
     out_remote = _finish(p_remote, f"{engine['kind']} run")
     return {"local": local / "results" / DATASET, "remote": remote / "results" / DATASET,
-            "remote_dir": remote, "out_remote": out_remote, "out_local": out_local, "gap": gap}
+            "remote_dir": remote, "out_remote": out_remote, "out_local": out_local}
 
 
 def test_cluster_run_went_through_the_engine(engine, runs):
@@ -205,44 +203,3 @@ def test_cluster_results_byte_identical_to_local(runs):
         else:
             detail.append(f"{k} differs")
     assert not diff, "cluster and local results are not byte-identical: " + "; ".join(detail)
-
-
-def _gap_benchmark_rule() -> str | None:
-    gap = ROOT / "workflow" / "rules" / "gap.smk"
-    if gap.exists() and re.search(r"^rule\s+gap_benchmark\s*:", gap.read_text(), re.M):
-        return "gap_benchmark"
-    return None
-
-
-def _gap_campaign_start(engine, tmp_path_factory) -> dict:
-    """Start a tiny gap campaign (target ``gap_benchmark``, n = 2 scenarios) through the engine, or say why not.
-
-    The campaign size is the config key ``gap: {benchmark: {n, seed, tier}}`` read by workflow/rules/gap.smk.
-    """
-    rule = _gap_benchmark_rule()
-    if rule is None:
-        return {"skip": "NOTE: workflow/rules/gap.smk has no 'gap_benchmark' rule, so no gap campaign was run "
-                        "through the cluster (the smoke pipeline was)"}
-    wd = workdir(tmp_path_factory.mktemp("gap_" + engine["kind"]), gap={"benchmark": {"n": 2, "seed": 1, "tier": "fast"}})
-    dry = _snakemake(wd, [rule], ["-n", "--cores", "1"])
-    out, _ = dry.communicate(timeout=300)
-    if dry.returncode != 0:
-        return {"error": f"dry run of {rule} failed:\n{out[-4000:]}"}
-    return {"proc": _snakemake(wd, [rule], ["--profile", str(engine["profile"])]), "workdir": wd}
-
-
-def test_gap_campaign_through_the_cluster(engine, runs):
-    """The tiny gap campaign started beside the pipeline runs went through the same engine."""
-    gap = runs["gap"]
-    if "skip" in gap:
-        pytest.skip(gap["skip"])
-    assert "error" not in gap, gap.get("error")
-    out = _finish(gap["proc"], "gap campaign", timeout=400)
-    res = gap["workdir"] / "results" / "gap_benchmark"
-    assert len(list((res / "scenarios").glob("*.json"))) == 2
-    assert (res / "scores.csv").stat().st_size > 0
-    if engine["kind"] == "slurm":
-        assert re.search(r"submitted with SLURM jobid \d+", out), out[-3000:]
-        assert re.search(r"Group job gap_batch\b", out), out[-3000:]
-    else:
-        assert list((gap["workdir"] / ".fakecluster").glob("*.args"))

@@ -13,12 +13,12 @@ import yaml
 from smk_workdir import ROOT, snakemake_cmd, workdir
 
 PROFILES = sorted((ROOT / "workflow" / "profiles").glob("*/config.yaml"))
-#: rules the shipped profiles group (per-trial jobs, and the gap campaign's scenarios)
-GROUPED = {"ingest", "estimate", "gap_scenario"}
+#: rules the shipped profiles group (the per-trial jobs)
+GROUPED = {"ingest", "estimate"}
 
 
 def _snakemake(wd: Path, targets: list[str], args: list[str]) -> subprocess.CompletedProcess:
-    cmd, env = snakemake_cmd(workdir(wd, gap={"benchmark": {"n": 2, "seed": 1, "tier": "fast"}}), targets, args)
+    cmd, env = snakemake_cmd(workdir(wd), targets, args)
     return subprocess.run(cmd, check=False, capture_output=True, text=True, env=env, cwd=wd, timeout=300)
 
 

@@ -14,16 +14,6 @@ RAW = config.get("raw_dir", "data/raw")
 RESULTS = config.get("results_dir", "results")
 DATASETS = list(config["datasets"])
 GAP_ENABLED = bool(config.get("gap", {}).get("enabled", True))
-GAP_BENCH = {
-    "n": 40,
-    "seed": 1,
-    "tier": "fast",
-    "estimator": "sensing_ri",
-    **config.get("gap", {}).get("benchmark", {}),
-}
-GAP_ESTIMATOR = config.get("gap", {}).get("estimator") or (
-    "sensing_ri" if config.get("calibration", {}).get("h_model") == "ri" else "sensing"
-)
 #: settings the H(q) calibration and the estimator read (params of the rules that fit a model)
 SENSING_CONFIG = {k: config.get(k, {}) for k in ("calibration", "estimation")}
 # cross-device benchmark target (workflow/rules/devices.smk): settings from config["devices"]

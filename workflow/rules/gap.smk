@@ -1,12 +1,5 @@
-# Sim-to-real gap diagnostic (code in src/selfsense/gap, docs/gap.md).
-# `gap_diagnose` runs per dataset (the report uses its verdict); `gap_benchmark` is a campaign target, NOT part of
-# the default run:
-#     snakemake --cores 2 gap_benchmark   (n, seed, tier, estimator from config["gap"]["benchmark"], defaults in
-#                                          workflow/rules/common.smk)
-#     e.g. snakemake --cores 2 gap_benchmark --configfile config.yaml bench.yaml
-#          with bench.yaml:  gap: {enabled: true, benchmark: {n: 1000, seed: 2026, tier: fast}}
-#     (tier full needs its own null calibration first: `selfsense gap calibrate --tier full ...`, merged into
-#      src/selfsense/gap/thresholds.json; without it every case stops with a KeyError naming that command)
+# Sim-to-real gap diagnostic (code in src/selfsense/gap, docs/gap.md): `gap_diagnose` runs per dataset and the
+# report uses its verdict. The blind check of the diagnostic is `selfsense gap blind` (not a pipeline target).
 
 
 rule gap_diagnose:
@@ -41,52 +34,3 @@ rule gap_diagnose:
         seed=config.get("gap", {}).get("seed", 0),
     script:
         "../scripts/gap_diagnose.py"
-
-
-rule gap_scenario:
-    output:
-        res("gap_benchmark", "scenarios", "{i}.json"),
-    log:
-        res("gap_benchmark", "logs", "scenario_{i}.log"),
-    benchmark:
-        res("gap_benchmark", "benchmarks", "scenario_{i}.tsv")
-    wildcard_constraints:
-        i="[0-9]+",
-    conda:
-        "../envs/selfsense.yaml"
-    threads: 1
-    resources:
-        mem_mb=1500,
-        runtime=10,
-    params:
-        seed=GAP_BENCH["seed"],
-        tier=GAP_BENCH["tier"],
-        estimator=GAP_BENCH["estimator"],
-    script:
-        "../scripts/gap_scenario.py"
-
-
-rule gap_benchmark:
-    input:
-        expand(
-            res("gap_benchmark", "scenarios", "{i}.json"), i=range(int(GAP_BENCH["n"]))
-        ),
-    output:
-        scores=report(
-            res("gap_benchmark", "scores.md"),
-            caption="../report/gap_benchmark.rst",
-            category="Sim-to-real gap benchmark",
-        ),
-        csv=res("gap_benchmark", "scores.csv"),
-    log:
-        res("gap_benchmark", "logs", "aggregate.log"),
-    benchmark:
-        res("gap_benchmark", "benchmarks", "aggregate.tsv")
-    conda:
-        "../envs/selfsense.yaml"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    script:
-        "../scripts/gap_aggregate.py"

@@ -2,7 +2,7 @@
 
 Every case draws a device family (Preisach, Bouc-Wen, generalised PI, Jiles-Atherton, in turn), a device
 (:func:`selfsense.sim.families.draw_device`), and effects (0 ~20 %, 1 ~50 %, 2-3 ~20 %, open-set ~10 %; magnitudes
-log-uniform 0.3x-30x the reference of :data:`selfsense.gap.benchmark.SIM_EFFECTS`, physical units in the record).
+log-uniform 0.3x-30x the reference of :data:`selfsense.gap.blindsim.SIM_EFFECTS`, physical units in the record).
 The diagnostic (:func:`selfsense.gap.stages.diagnose_stages`) sees the dataset only.
 
 Truth, counterfactual and per stage: the same device, drive and noise are re-simulated without each effect (the
@@ -45,10 +45,10 @@ FLOOR_LEVEL = 0.1
 
 def draw_case(i: int, seed: int, open_set_rate: float = 0.1) -> dict:
     """Family, device seed and effects of case ``i`` of a campaign ``seed`` (deterministic)."""
-    from .benchmark import draw_effects
+    from .blindsim import draw_effects
 
     rng = np.random.default_rng([int(seed), int(i), 31])
-    eff = draw_effects(rng, "device", open_set_rate)
+    eff = draw_effects(rng, open_set_rate)
     return {"family": FAMILIES[int(i) % len(FAMILIES)], "device_seed": int(seed) * 100_003 + int(i),
             "noise_seed": int(seed) * 7_919 + int(i), "effects": eff}
 
@@ -137,10 +137,17 @@ def load_stage_thresholds(path: Path | None = None) -> dict:
 
 
 def _map(fn, args, jobs, desc: str) -> list:
-    """``[fn(*a) for a in args]`` through the benchmark's process map (order kept, progress on a terminal only)."""
-    from .benchmark import _map_jobs
+    """``[fn(*a) for a in args]``, in worker processes when ``jobs`` > 1 (order kept; progress bar on a terminal
+    only: disable=None keeps non-interactive logs and Snakemake rule logs quiet)."""
+    from tqdm import tqdm
 
-    return _map_jobs(_star, [(fn, a) for a in args], jobs, desc)
+    args = [(fn, a) for a in args]
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as ex:
+            return list(tqdm(ex.map(_star, args, chunksize=1), total=len(args), desc=desc, unit="case", disable=None))
+    return [_star(a) for a in tqdm(args, desc=desc, unit="case", disable=None)]
 
 
 def _star(x):
@@ -294,7 +301,7 @@ def run_campaign(n: int, seed: int, jobs: int, out: Path, command: str = "", thr
 def draw_tip_case(i: int, seed: int) -> dict:
     """A single-effect library case (family in turn, effect drawn uniformly, magnitude log-uniform 1x-30x the
     reference: the tip tier asks how far a named effect shrinks the tip error, so it needs effects that reach it)."""
-    from .benchmark import SIM_EFFECTS
+    from .blindsim import SIM_EFFECTS
 
     rng = np.random.default_rng([int(seed), int(i), 53])
     lib = [v[0] for v in SIM_EFFECTS.values() if not v[0].startswith("open.")]

@@ -201,10 +201,19 @@ def _figure(v: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def _json_default(o):
+    """JSON for the verdict's NumPy scalars and arrays, sets and tuples; anything else as its string."""
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (set, frozenset, tuple)):
+        return list(o)
+    return str(o)
+
+
 def write(v: dict, out: Path, figures: bool = True) -> None:
     from selfsense.io import atomic_write_text
-
-    from .report import _json_default
 
     out.mkdir(parents=True, exist_ok=True)
     T = _tables(v)

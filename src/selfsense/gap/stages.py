@@ -17,7 +17,7 @@ residual that needs no truth, measured on the trials where the stage is observed
   stored charge (eqs. 27 and 52 with f = 0), so the nominal model is a line in Q (plus a small quadratic term for
   the mechanism's kinematics) and the stage is almost null-free.
 * **load** (force-reference trials): the load cell against the nominal estimate f^ (the fast stand-in of the
-  sensing estimator, :class:`selfsense.gap.model.FastSensingEstimator`, calibrated on the calibration trials), with
+  sensing estimator, :class:`selfsense.gap.standin.FastSensingEstimator`, calibrated on the calibration trials), with
   Q and V free (eq. 46: the two-port cross terms are part of the nominal).
 
 Each stage has a library of members (a few physically shaped columns, some on a grid of a physical parameter:
@@ -126,10 +126,21 @@ def resonator(x: np.ndarray, f_hz: float, zeta: float, dt: float) -> np.ndarray:
 
 
 def rate_limit(x: np.ndarray, rate: float, dt: float) -> np.ndarray:
-    """x followed at most at ``rate`` [unit/s] (an amplifier slew / current limit into a capacitive load)."""
-    from .library import _slew_limit
-
-    return _slew_limit(np.asarray(x, float), np.arange(len(x)) * dt, rate)
+    """x followed at most at ``rate`` [unit/s] (an amplifier slew / current limit into a capacitive load): the
+    forward recursion ``y_k = y_{k-1} + clip(x_k - y_{k-1}, -rate dt, rate dt)``."""
+    x = np.asarray(x, float)
+    y = np.empty_like(x)
+    if len(x) == 0:
+        return y
+    y[0] = prev = x[0]
+    t = np.arange(len(x)) * dt
+    dtl = rate * np.diff(t)
+    for i in range(1, len(x)):  # a few thousand samples per trial: plain Python is fast enough here
+        d = x[i] - prev
+        lim = dtl[i - 1]
+        prev = prev + (lim if d > lim else (-lim if d < -lim else d))
+        y[i] = prev
+    return y
 
 
 def _plays(x: np.ndarray, radii, z0=None) -> np.ndarray:
@@ -607,7 +618,7 @@ def _cross_stage(stages: dict) -> None:
 def attach_force_estimate(sigs: list[StageSignals], trials: dict, meta: pd.DataFrame, rig) -> None:
     """Nominal force estimate f^ on every trial from the fast stand-in estimator calibrated on the calibration
     trials (eqs. 27, 52, 55); stored in ``s.extra["f_hat"]`` (left out if the calibration fails)."""
-    from .model import FastSensingEstimator
+    from .standin import FastSensingEstimator
 
     try:
         est = FastSensingEstimator(rig=rig).fit(trials, meta)

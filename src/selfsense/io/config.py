@@ -8,7 +8,6 @@ any job runs:
 * ``results_dir`` neither equal to, inside, nor containing ``raw_dir`` or any dataset folder, symlinks resolved
   (Snakemake's logs and benchmark files would otherwise land inside the raw data);
 * the cvxpy solver of ``calibration.solver`` installed (else the QP fails after the slow steps);
-* the gap diagnostic's estimator one of the known kinds (no silent fallback).
 
 Every failure is a :class:`ConfigError` with a one-line message naming the file or key and the expectation.
 """
@@ -23,10 +22,8 @@ from .errors import truncate
 from .yamlsafe import YamlInputError, load_yaml_file
 
 __all__ = ["ConfigError", "check_config", "check_config_files", "check_solver", "load_config_file",
-           "GAP_ESTIMATORS", "SOLVER_PACKAGES"]
+           "SOLVER_PACKAGES"]
 
-#: estimator kinds of the gap diagnostic (selfsense.gap; workflow/schemas/config.schema.yaml enumerates them too)
-GAP_ESTIMATORS = ("sensing", "sensing_ri", "fast")
 #: cvxpy solver name -> the Python package that provides it (checked without importing cvxpy)
 SOLVER_PACKAGES = {"CLARABEL": "clarabel", "OSQP": "osqp", "SCS": "scs", "ECOS": "ecos", "CVXOPT": "cvxopt",
                    "PIQP": "piqp", "PROXQP": "proxsuite", "DAQP": "daqp", "QOCO": "qoco", "GUROBI": "gurobipy",
@@ -127,7 +124,3 @@ def check_config(config: Mapping[str, Any], configfiles: Iterable[str | os.PathL
         check_solver(cal["solver"])
     else:
         check_solver("CLARABEL")
-    gap = config.get("gap") or {}
-    if isinstance(gap, Mapping) and "estimator" in gap and gap["estimator"] not in GAP_ESTIMATORS:
-        raise ConfigError(f"config: key 'gap.estimator': expected one of {', '.join(GAP_ESTIMATORS)}, found "
-                          f"{truncate(repr(gap['estimator']), 80)}")

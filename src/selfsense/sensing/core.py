@@ -3,7 +3,7 @@
 Every place that evaluates one of these equations calls the definitions here: the batch estimator
 (``estimator.py``), the streaming estimator's per-sample numba kernel (``streaming.py``), the batch charge
 integration (:func:`selfsense.signals.charge_from_shunt`) and the gap diagnostic's fast estimator
-(``selfsense.gap.model``). Each equation is one scalar kernel compiled with ``numba.njit(inline="always")``, which
+(``selfsense.gap.standin``). Each equation is one scalar kernel compiled with ``numba.njit(inline="always")``, which
 the streaming kernel inlines, and the NumPy functions below evaluate the very same Python expression
 (``kernel.py_func``) on arrays, elementwise and in the same order, so batch and streaming round alike.
 
