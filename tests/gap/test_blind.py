@@ -67,10 +67,13 @@ def test_fast_tier_meets_floors_from_the_campaign():
     gap_stages/scores.md) so that sampling noise of a small tier does not fail them, but a broken stage does."""
     recs = [blind.run_case(i, 424242) for i in range(24)]
     sc = blind.score(recs)
+    # measured on this seed: 13 cases with a present library effect, family and member top-1 0.85, false alarms 1 of
+    # 7 effect-free cases, median stage-shrink error 0.14; chance for top-1 is about 0.1 (ten library families)
     assert sc["n_library_present"] >= 6
     assert sc["family_top1"] >= 0.7
+    assert sc["member_top1"] >= 0.7
     assert sc["false_alarm_rate"] <= 0.25
-    assert sc["median_shrink_error"] <= 0.5
+    assert sc["median_shrink_error"] <= 0.3
 
 
 def test_committed_tip_tier_recomputes():

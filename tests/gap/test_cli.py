@@ -36,5 +36,11 @@ def test_stage_diagnose_cli_on_the_sample(tmp_path):
 
 
 def test_cli_rejects_missing_dataset(tmp_path):
-    with pytest.raises(Exception):
-        main(["diagnose", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+    """A missing dataset folder is a contract error naming the folder and what was expected; nothing is written."""
+    from selfsense.io.errors import ContractError
+
+    missing = tmp_path / "nope"
+    with pytest.raises(ContractError, match="expected a dataset folder") as e:
+        main(["diagnose", str(missing), "--out", str(tmp_path / "o")])
+    assert str(missing) in str(e.value)
+    assert not (tmp_path / "o").exists()

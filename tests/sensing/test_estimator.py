@@ -123,6 +123,9 @@ def test_physical_coefficients_match_eq_47_48_53(data):
     assert est.coef_["A3"] == pytest.approx(-M[1, 1] / Cp_cat, rel=0.05)
     # displacement row: dx = (M00 - M01 M10/M11 - M01/(n Cp_cat)) Q + M01 V_p_est
     assert est.coef_["A2"] == pytest.approx(M[0, 1], rel=0.05)
+    n = RIG["n_actuators"]
+    A1 = M[0, 0] - M[0, 1] * M[1, 0] / M[1, 1] - M[0, 1] / (n * Cp_cat)
+    assert est.coef_["A1"] == pytest.approx(A1, rel=0.05)
 
 
 def test_validation_trials_never_used_for_fitting(data):

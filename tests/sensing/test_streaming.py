@@ -142,6 +142,7 @@ def _check_equal(stream: SelfSensingStream, est, raw: pd.DataFrame, sig: pd.Data
 def test_stream_equals_batch_all_trials(fitted):
     d, est, sigs = fitted
     stream = SelfSensingStream(est)
+    clipped = 0
     for trial, sig in sigs.items():
         out, batch = _check_equal(stream, est, _raw(d, trial), sig)
         # non-trivial: the estimates move, the relay segment gives exactly 0, limiting is active
@@ -149,6 +150,15 @@ def test_stream_equals_batch_all_trials(fitted):
         assert np.all(out["dx_hat"][:150] == 0.0) and np.all(out["f_hat"][:150] == 0.0)
         lo, hi = est.ranges_["dx"]
         assert out["dx_hat"].min() >= lo and out["dx_hat"].max() <= hi
+        # limiting is active: estimates sit exactly at a limit (after the sliding DC offset), in stream and batch
+        act = _raw(d, trial)["relay"].to_numpy() < 0.5
+        flo, fhi = est.ranges_["f"]
+        at_dx = act & ((out["dx_hat"] == lo) | (out["dx_hat"] == hi))
+        at_f = act & ((out["f_hat"] == flo) | (out["f_hat"] == fhi))
+        np.testing.assert_array_equal(batch["dx_hat"].to_numpy()[at_dx], out["dx_hat"][at_dx])
+        np.testing.assert_array_equal(batch["f_hat"].to_numpy()[at_f], out["f_hat"][at_f])
+        clipped += int(at_dx.sum()) + int(at_f.sum())
+    assert clipped > 0, "limiting never clipped: the test would pass with limiting off"
 
 
 def test_stream_arbitrary_blocks_and_steps_equal_one_block(fitted):

@@ -333,6 +333,42 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
 
 
+# ---- the charge-link and rest-offset gates (docs/method.md 6c, 6c'): adopted on the calibration rows' blocked CV --
+#: leakage from the calibration rows: the blocked-CV error with g must not be higher than without (ratio <= 1) ...
+LEAK_CAL_MAX_CV_RATIO = 1.0
+#: ... and the leave-one-block-out estimates of g must agree with g within this fraction of g
+LEAK_FOLD_AGREEMENT = 0.5
+#: leakage from the holds of every trial: the calibration rows' blocked-CV error may grow by at most 2 % with it
+LEAK_HOLD_MAX_CV_RATIO = 1.02
+#: offset-drift compensation: the columns must lower the calibration rows' blocked-CV error by more than 1 %
+OFFSET_DRIFT_MIN_GAIN = 0.01
+#: rest offset: the constant must lower the displacement rows' blocked-CV error by more than 2 %
+REST_OFFSET_MIN_GAIN = 0.02
+
+
+def leakage_supported_by_calibration(g: float, g_folds, cv_with: float, cv_without: float) -> bool:
+    """Leakage ``g`` [S] from the calibration rows is supported when it is above 0.1 nS, its blocked-CV error is not
+    higher than without it, and every leave-one-block-out estimate lies within 50 % of it."""
+    return bool(g > 0.1e-9 and cv_with <= LEAK_CAL_MAX_CV_RATIO * cv_without
+                and all(abs(x - g) <= LEAK_FOLD_AGREEMENT * g for x in g_folds))
+
+
+def leakage_supported_by_holds(hold_supported: bool, cv_with: float, cv_without: float) -> bool:
+    """Leakage estimated from the holds of every trial is used when the holds support it and the calibration rows'
+    blocked-CV error grows by at most 2 % with it."""
+    return bool(hold_supported and cv_with <= LEAK_HOLD_MAX_CV_RATIO * cv_without)
+
+
+def offset_drift_supported(cv_with: float, cv_without: float) -> bool:
+    """The offset-drift columns are adopted when they lower the blocked-CV error by more than 1 %."""
+    return bool(cv_with < (1.0 - OFFSET_DRIFT_MIN_GAIN) * cv_without)
+
+
+def rest_offset_supported(cv_with: float, cv_without: float) -> bool:
+    """The rest offset is adopted when it lowers the displacement rows' blocked-CV error by more than 2 %."""
+    return bool(cv_with < (1.0 - REST_OFFSET_MIN_GAIN) * cv_without)
+
+
 def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5) -> tuple[bool, dict]:
     """Whether the displacement row gets a constant ``dx0`` [m], the tip's closing at rest.
 
@@ -352,7 +388,7 @@ def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5)
 
     without = cv(X)
     with_ = cv(np.column_stack([X, np.ones(len(X))]))
-    ok = bool(with_ < 0.98 * without)
+    ok = rest_offset_supported(with_, without)
     return ok, {"applied": ok, "cv_rms_m_without": without, "cv_rms_m_with": with_,
                 "note": ("rest offset applied" if ok else "rest offset not supported by the calibration trials")
                 + f" (blocked-CV RMS of the displacement rows {with_:.3g} m with, {without:.3g} m without)"}
@@ -612,13 +648,13 @@ class SelfSensingEstimator:
         notes = []
         # supported by the calibration rows when it does not worsen their blocked CV and the leave-one-block-out
         # estimates agree within 50 %
-        cal_ok = bool(g_cal > 0.1e-9 and best_cal <= base and all(abs(x - g_cal) <= 0.5 * g_cal for x in g_folds))
+        cal_ok = leakage_supported_by_calibration(g_cal, g_folds, best_cal, base)
         # supported by the holds of every trial (reference-free, selfsense.chain.charge.hold_evidence) when the
         # calibration rows are not made worse by more than 2 % with the hold-estimated conductance
         g_hold = float(ev.get("g_s") or 0.0)
         best_hold = cv(g_hold, True) if ev.get("supported") else float("inf")
         info["cv_rms_v_with_hold_g"] = best_hold if np.isfinite(best_hold) else None
-        hold_ok = bool(ev.get("supported") and best_hold <= 1.02 * base)
+        hold_ok = leakage_supported_by_holds(bool(ev.get("supported")), best_hold, base)
         g, best, source = 0.0, base, "none"
         if modes["leakage"] == "off":
             notes.append("leakage compensation off (forced)")
@@ -648,7 +684,7 @@ class SelfSensingEstimator:
         # takes that relaxation for drift (measured in docs/gap.md, "The charge link")
         without_cols = cv(g, False)
         info["offset_drift_cv_rms_v_without"] = without_cols
-        cal_gain = bool(best < 0.99 * without_cols)
+        cal_gain = offset_drift_supported(best, without_cols)
         applied = {"off": False, "on": True}.get(modes["offset_drift"], cal_gain)
         info["offset_drift_applied"] = bool(applied)
         info["offset_drift_source"] = ("forced" if modes["offset_drift"] != "auto" else
