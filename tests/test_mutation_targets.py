@@ -3,6 +3,7 @@ once in the source, and every test it names exists."""
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("mutation_check", ROOT / "tests" / "mutation_check.py")
 mc = importlib.util.module_from_spec(spec)
+sys.modules["mutation_check"] = mc   # dataclasses resolve annotations through sys.modules
 spec.loader.exec_module(mc)
 
 
