@@ -1,4 +1,4 @@
-"""Peak memory of every pipeline job on one long trial (issue 16): 10 minutes at 10 kHz (6,000,000 samples).
+"""Peak memory of every pipeline job on one long trial: 10 minutes at 10 kHz (6,000,000 samples).
 
     python benchmarks/memory_pipeline.py [--minutes 10] [--rate 10000] [--out benchmarks/MEMORY.md]
 

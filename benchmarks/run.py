@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""selfsense speed benchmarks (issue "Speed"); writes a Markdown report.
+"""selfsense speed and memory benchmarks; writes a Markdown report and its figures as JSON.
 
     python benchmarks/run.py [--quick] --out benchmarks/RESULTS.md
 

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         for line in lines:  # a contract error: one line per problem
             print(f"selfsense {cmd}: error: {_cap(line)}", file=sys.stderr)
         return 2
-    except Exception as exc:  # noqa: BLE001 - a bug, not bad input: still one line, exit 1 (issue 16)
+    except Exception as exc:  # noqa: BLE001 - a bug, not bad input: still one line, exit 1
         if os.environ.get("SELFSENSE_TRACEBACK"):
             raise
         print(f"selfsense {cmd}: internal error ({type(exc).__name__}; SELFSENSE_TRACEBACK=1 shows the traceback): "

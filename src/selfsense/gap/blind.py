@@ -1,4 +1,4 @@
-"""Blind check of the stage-wise diagnostic across device families (docs/gap.md; issue: stages).
+"""Blind check of the stage-wise diagnostic across device families (docs/gap.md).
 
 Every case draws a device family (Preisach, Bouc-Wen, generalised PI, Jiles-Atherton, in turn), a device
 (:func:`selfsense.sim.families.draw_device`), and effects (0 ~20 %, 1 ~50 %, 2-3 ~20 %, open-set ~10 %; magnitudes

@@ -67,7 +67,7 @@ def _prepare(si: pd.DataFrame, rig) -> pd.DataFrame:
 
 
 def load_truth(dataset_dir: Path) -> tuple[dict | None, dict | None]:
-    """Truth folder BESIDE the dataset (``<dataset_dir>.truth``), CONTRACTS.md; (None, None) if absent."""
+    """Truth folder BESIDE the dataset (``<dataset_dir>.truth``), docs/dev/CONTRACTS.md; (None, None) if absent."""
     tdir = Path(str(Path(dataset_dir)).rstrip("/") + ".truth")
     if not tdir.is_dir():
         return None, None

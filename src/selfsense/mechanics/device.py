@@ -5,7 +5,7 @@ Table 1 (Cedrat MLA 2510 catalog, per actuator), eqs. (21), (24)-(27), (44)-(46)
 paper ``001_972cacfaa08ad91a.txt`` Table I (alpha = 2.35 N/V, C_p = 0.3 uF,
 dx_pzt_free = 10 um, dx_tip_free = 6.3 mm, B = 1.59e-3).
 
-Sign conventions: CONTRACTS.md (dx_tip closing of both arms, positive when actuators
+Sign conventions: docs/dev/CONTRACTS.md (dx_tip closing of both arms, positive when actuators
 expand; f_tip pinch-positive; q TOTAL charge of the n_A actuators). Mechanism stiffness
 ``K = [[S1, S3], [S3, S2]]`` (PSD) relates the forces applied ON the mechanism to
 ``[x_pzt, dx_tip]``; S3 < 0. See :mod:`selfsense.mechanics.piezo`.
@@ -99,7 +99,7 @@ class TweezerMechanics:
 
     @property
     def Cp_total(self) -> float:
-        """n_A C_p [F] (CONTRACTS.md H(q) convention)."""
+        """n_A C_p [F] (docs/dev/CONTRACTS.md H(q) convention)."""
         return self.n_A * self.Cp
 
     def tip_matrix(self, convention: str = "contract") -> np.ndarray:

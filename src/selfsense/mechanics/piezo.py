@@ -17,7 +17,7 @@ Conventions (see also :mod:`selfsense.mechanics.twoport` and docs/mechanics.md):
 * The literal eq. (45) second row is ``F_out`` (= ``-f_tip`` pinch-positive). This is an
   internal inconsistency of the thesis, whose eq. (51) uses pinch-positive f_tip.
   ``convention="thesis"`` returns the literal (45); ``convention="contract"`` negates the
-  force row so that f_tip is positive when pinching (CONTRACTS.md).
+  force row so that f_tip is positive when pinching (docs/dev/CONTRACTS.md).
 """
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def tip_matrix(S1, S2, S3, alpha, Cp, k, n_A, convention: str = "thesis") -> np.
 
     ``convention="thesis"``: second row is the literal (45) force = force exerted by the
     object on the tip (``= -f_tip`` pinch-positive when S3 < 0). ``"contract"``: second row
-    negated, i.e. pinch-positive ``f_tip`` (CONTRACTS.md). Units: M11 [m/C], M12 [m/V],
+    negated, i.e. pinch-positive ``f_tip`` (docs/dev/CONTRACTS.md). Units: M11 [m/C], M12 [m/V],
     M21 [N/C], M22 [N/V].
     """
     sgn = _check_conv(convention)
