@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from selfsense import cli, pipeline_cli
+from selfsense import cli
+from selfsense.cli import run as pipeline_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 

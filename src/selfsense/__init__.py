@@ -6,3 +6,13 @@ The science follows three seed documents, cited by file name (references in CITA
 """
 
 __version__ = "0.1.0"  # the single version source (pyproject.toml reads it; CHANGELOG.md)
+
+
+def version() -> str:
+    """Installed package version (``importlib.metadata``), falling back to ``__version__``."""
+    try:
+        from importlib.metadata import version as _v
+
+        return _v("selfsense")
+    except Exception:  # pragma: no cover - not installed as a distribution
+        return __version__

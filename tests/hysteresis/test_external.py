@@ -87,7 +87,7 @@ def test_fit_external_accepts_any_record_pair(tmp_path):
     missing column or a bad prehistory is one clear error (exit code 2)."""
     import pandas as pd
 
-    from selfsense.hysteresis.external import main
+    from selfsense.cli.fit_external import main
     from selfsense.hysteresis.operators import play_operator
 
     t = np.arange(4000) * 1e-3

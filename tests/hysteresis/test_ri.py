@@ -157,7 +157,7 @@ SLAC = Path(_EXT) / "slac_quadrupole" if _EXT else None
 @pytest.mark.skipif(SLAC is None or not (SLAC / "strdat.ru3").exists(),
                     reason="external measurements not available (set SELFSENSE_EXTERNAL_DATA to their folder)")
 def test_slac_ri_beats_straight_line_out_of_sample():
-    from selfsense.hysteresis.ri_cli import parse_slac_report, slac_comparison
+    from selfsense.hysteresis.slac import parse_slac_report, slac_comparison
     r3 = parse_slac_report(SLAC / "strdat.ru3")
     assert r3["current"].size == 61 and r3["BL"][10] == pytest.approx(5.217174)
     rows = slac_comparison(SLAC, include_pi=False)

@@ -8,7 +8,7 @@ import yaml
 
 from selfsense.io import (ContractError, load_dataset, load_rig, load_trials, read_log, trial_signals,
                           validate_dataset)
-from selfsense.io.cli import main as validate_main
+from selfsense.cli.validate import main as validate_main
 
 from io_factory import RIG, read_any, write_log
 

@@ -163,7 +163,7 @@ PIPELINE = [
 
 @pytest.mark.parametrize("case", PIPELINE, ids=[c[0] for c in PIPELINE])
 def test_pipeline_requirements(dataset, case, capsys):
-    from selfsense.io.cli import main
+    from selfsense.cli.validate import main
 
     _, mutate, field, frag = case
     mutate(dataset)
@@ -421,7 +421,7 @@ def test_cli_validate_comma_decimal_hint(dataset):
 
 
 def test_cli_internal_error_is_one_line(monkeypatch, capsys):
-    import selfsense.io.cli as vcli
+    import selfsense.cli.validate as vcli
 
     def boom(argv):
         raise ZeroDivisionError("x" * 10_000)

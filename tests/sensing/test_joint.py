@@ -131,7 +131,7 @@ def test_estimate_command_runs_registry_models_in_batch(tmp_path):
     """`selfsense estimate` with the default (registry) model reproduces the batch pipeline on a raw log."""
     import json
 
-    from selfsense.sensing.cli import estimate_log, streamable
+    from selfsense.cli.estimate import estimate_log, streamable
 
     d = ROOT / "data" / "raw" / "sample"
     rig = sio.load_rig(d)

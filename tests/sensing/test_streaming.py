@@ -241,7 +241,7 @@ def test_stream_errors(fitted):
 
 
 def test_cli_chunked_equals_batch(fitted, tmp_path):
-    from selfsense.sensing.cli import main
+    from selfsense.cli.estimate import main
 
     d, est, sigs = fitted
     model = tmp_path / "sensing.json"

@@ -9,7 +9,7 @@ import yaml
 
 from selfsense.determinism import compare_daq_log, compare_dataset_dirs
 from selfsense.sim import EFFECTS, load_device, simulate_dataset, simulate_scenario_in_memory, simulate_trial
-from selfsense.sim.cli import main as cli_main
+from selfsense.cli.simulate import main as cli_main
 from selfsense.sim.simulate import load_scenario, write_parquet
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -132,8 +132,8 @@ def slac_data_dir(wildcards):
 
 
 def ri_main(args, log):
-    """The RI command line (selfsense.hysteresis.ri_cli) inside the Snakemake process, output to the rule's log."""
-    from selfsense.hysteresis.ri_cli import main
+    """The RI command line (selfsense.cli.ri) inside the Snakemake process, output to the rule's log."""
+    from selfsense.cli.ri import main
 
     with stages.logged(log):
         rc = main(list(args))

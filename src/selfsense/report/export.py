@@ -14,10 +14,8 @@ H(q) fit report, the estimator configuration and the package version.
 """
 from __future__ import annotations
 
-import argparse
 import io as _io
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -72,7 +70,7 @@ def export_trial(dataset_dir: str | Path, trial: str, signals_parquet: str | Pat
     import scipy.io
 
     from selfsense import io as sio
-    from selfsense.cli import version
+    from selfsense import version
     from selfsense.io.formats import MAT_HEADER
 
     rig = sio.load_rig(dataset_dir)
@@ -123,39 +121,3 @@ def export_trial(dataset_dir: str | Path, trial: str, signals_parquet: str | Pat
         sio.write_text_atomic("\n".join(lines) + "\n" + body.getvalue(), out_csv)
         written.append(Path(out_csv))
     return written
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="selfsense export", allow_abbrev=False,
-                                 description="write each trial's results as .mat and .csv with units, sample rate, "
-                                             "V, q, raw and post-processed estimates, coefficients and config")
-    ap.add_argument("results", help="results folder of one dataset, e.g. results/tweezer_sim (after selfsense run)")
-    ap.add_argument("dataset", help="its raw dataset folder, e.g. data/raw/tweezer_sim (rig.yaml, trials.csv)")
-    ap.add_argument("--out", required=True, help="output folder (created): <trial>.mat and <trial>.csv")
-    ap.add_argument("--trial", action="append", default=None,
-                    help="trial to export (repeatable; default: every trial with results)")
-    ap.add_argument("--format", choices=["mat", "csv", "both"], default="both", help="what to write (default both)")
-    a = ap.parse_args(argv)
-    res = Path(a.results)
-    model = res / "model" / "sensing.json"
-    if not model.is_file():
-        raise FileNotFoundError(2, "No such file or directory (run 'selfsense run' first)", str(model))
-    trials = a.trial or sorted(p.stem for p in (res / "internals").glob("*.parquet"))
-    if not trials:
-        raise ValueError(f"{res / 'internals'}: no trial results to export (run 'selfsense run' first)")
-    out = Path(a.out)
-    for t in trials:
-        sig, internals = res / "signals" / f"{t}.parquet", res / "internals" / f"{t}.parquet"
-        for p in (sig, internals):
-            if not p.is_file():
-                raise FileNotFoundError(2, f"No such file or directory (no results for trial {t!r})", str(p))
-        paths = export_trial(a.dataset, t, sig, internals, model,
-                             out / f"{t}.mat" if a.format in ("mat", "both") else None,
-                             out / f"{t}.csv" if a.format in ("csv", "both") else None)
-        for p in paths:
-            print(f"wrote {p}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

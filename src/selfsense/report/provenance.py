@@ -64,7 +64,7 @@ def git_commit(path: str | Path) -> str:
 def provenance(dataset_dir: str | Path) -> dict[str, Any]:
     """The provenance block of a report for ``dataset_dir``."""
     import selfsense
-    from selfsense.cli import version
+    from selfsense import version
 
     d = Path(dataset_dir)
     digest, n = dataset_hash(d)

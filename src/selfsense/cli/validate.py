@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .dataset import _dataset_problems
+from selfsense.io.dataset import _dataset_problems
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,10 +42,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def _print_metrics(d: Path) -> None:
     """One line per trial: the quantities the plausibility checks compare with their limits."""
-    from .logs import check_log
-    from .plausibility import check_plausibility
-    from .rig import check_rig
-    from .trials import check_trials
+    from selfsense.io.logs import check_log
+    from selfsense.io.plausibility import check_plausibility
+    from selfsense.io.rig import check_rig
+    from selfsense.io.trials import check_trials
 
     rig, _ = check_rig(d)
     trials, _ = check_trials(d)

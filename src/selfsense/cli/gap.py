@@ -17,7 +17,7 @@ __all__ = ["main"]
 def _diagnose(a) -> int:
     import yaml
 
-    from .pipeline import run_stage_diagnose
+    from selfsense.gap.pipeline import run_stage_diagnose
 
     cfg = yaml.safe_load(Path(a.configfile).read_text()) if a.configfile else {}
     v = run_stage_diagnose(a.dataset_dir, a.out, cfg, seed=a.seed, figures=not a.no_figures, force=a.force)
@@ -28,13 +28,13 @@ def _diagnose(a) -> int:
 def _blind(a) -> int:
     from selfsense.io.outputs import MARKER, check_output_dir, output_lock
 
-    from .blind import load_stage_thresholds, run_campaign
+    from selfsense.gap.blind import load_stage_thresholds, run_campaign
 
     out = Path(a.out)
     cmd = f"selfsense gap blind --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
     thr = load_stage_thresholds(a.thresholds) if a.thresholds else None
     if a.tip:
-        from .blind import run_tip_tier
+        from selfsense.gap.blind import run_tip_tier
 
         cmd = f"selfsense gap blind --tip --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"
         with output_lock(out):
@@ -61,7 +61,7 @@ def _blind(a) -> int:
 def _blind_calibrate(a) -> int:
     from selfsense.io import atomic_write_text
 
-    from .blind import calibrate
+    from selfsense.gap.blind import calibrate
 
     doc = calibrate(a.n, a.seed, a.jobs)
     doc["command"] = f"selfsense gap blind-calibrate --n {a.n} --seed {a.seed} --jobs {a.jobs} --out {a.out}"

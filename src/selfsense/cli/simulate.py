@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from selfsense.io import check_output_dir, output_lock
 
-    from .simulate import load_scenario, simulate_dataset
+    from selfsense.sim.simulate import load_scenario, simulate_dataset
     try:
         # never replace a dataset or a folder selfsense did not write without --force (selfsense.io.outputs)
         truth = a.truth or str(Path(a.out).with_name(Path(a.out).name + ".truth"))

@@ -23,7 +23,6 @@ traceback stays in its log). Otherwise the exit code is Snakemake's.
 from __future__ import annotations
 
 import copy
-import os
 import signal
 import subprocess
 import sys

@@ -1,7 +1,8 @@
 """The ``selfsense`` command.
 
-Each subcommand lives with the subpackage that owns it and is imported lazily, so that
-``selfsense validate`` does not pay for numba or cvxpy start-up. ``selfsense <command> --help`` describes every
+Each subcommand is one module of this package (``selfsense.cli.<command>``), imported lazily, so that
+``selfsense validate`` does not pay for numba or cvxpy start-up; the science each one calls lives in the
+subpackages below (io, sim, sensing, gap, hysteresis, report). ``selfsense <command> --help`` describes every
 option of a command.
 
 Errors a user can cause (a bad dataset, a missing file, an invalid value) end with one line on stderr,
@@ -14,37 +15,27 @@ import importlib
 import os
 import sys
 
+from selfsense import version  # noqa: F401  (re-exported: selfsense.cli.version)
+
 #: subcommand -> (module, function, one-line description); each function takes ``argv: list[str]`` and returns an
 #: exit code.
 SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
-    "init": ("selfsense.init_cli", "main", "write a template dataset folder (rig.yaml, trials.csv) for your own rig"),
-    "validate": ("selfsense.io.cli", "main", "check a raw dataset folder against the data contract"),
-    "simulate": ("selfsense.sim.cli", "main", "write a virtual-tweezer dataset and its truth folder"),
-    "run": ("selfsense.pipeline_cli", "main",
+    "init": ("selfsense.cli.init", "main", "write a template dataset folder (rig.yaml, trials.csv) for your own rig"),
+    "validate": ("selfsense.cli.validate", "main", "check a raw dataset folder against the data contract"),
+    "simulate": ("selfsense.cli.simulate", "main", "write a virtual-tweezer dataset and its truth folder"),
+    "run": ("selfsense.cli.run", "main",
             "run the Snakemake pipeline in the current directory (options go to Snakemake)"),
-    "estimate": ("selfsense.sensing.cli", "main",
-                 "stream a long DAQ log through a fitted model (CSV, Parquet, TDMS, MAT)"),
-    "export": ("selfsense.report.export", "main",
+    "estimate": ("selfsense.cli.estimate", "main",
+                 "estimate a DAQ log with a fitted model (CSV, Parquet, TDMS, MAT; streamed where the model allows)"),
+    "export": ("selfsense.cli.export", "main",
                "write each trial's results as .mat and .csv with units, V, q, estimates, coefficients, config"),
-    "gap": ("selfsense.gap.cli", "main", "sim-to-real gap diagnostic (diagnose, benchmark, calibrate, ...)"),
-    "ri": ("selfsense.hysteresis.ri_cli", "main", "RI hysteresis model checks against published data"),
-    "fit-external": ("selfsense.hysteresis.external", "main",
+    "gap": ("selfsense.cli.gap", "main", "sim-to-real gap diagnostic (diagnose, blind, blind-calibrate)"),
+    "ri": ("selfsense.cli.ri", "main", "RI hysteresis model checks against published data"),
+    "fit-external": ("selfsense.cli.fit_external", "main",
                      "fit the hysteresis models to the external measured data sets"),
-    "devices": ("selfsense.devices", "main",
+    "devices": ("selfsense.cli.devices", "main",
                 "cross-device accuracy benchmark: Table 3 on virtual devices of several hysteresis families"),
 }
-
-
-def version() -> str:
-    """Installed package version (``importlib.metadata``), falling back to ``selfsense.__version__``."""
-    try:
-        from importlib.metadata import version as _v
-
-        return _v("selfsense")
-    except Exception:  # pragma: no cover - not installed as a distribution
-        from selfsense import __version__
-
-        return __version__
 
 
 def _usage() -> str:

@@ -1,0 +1,64 @@
+"""``selfsense devices``: the cross-device accuracy benchmark (:mod:`selfsense.devices`)."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from selfsense.devices import _config_from, bench, run_device, write_record, write_tables
+
+__all__ = ["main"]
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from selfsense.sim.families import FAMILIES, PRESETS
+
+    ap = argparse.ArgumentParser(prog="selfsense devices", allow_abbrev=False,
+                                 description="Cross-device accuracy benchmark: Table 3 on virtual devices of several "
+                                             "truth hysteresis families (selfsense.sim.families).")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="simulate and score one device (one Snakemake job)", allow_abbrev=False)
+    r.add_argument("--family", required=True, choices=FAMILIES, help="truth hysteresis family")
+    r.add_argument("--preset", default="clean", choices=PRESETS, help="clean, or drift (leakage + offset + creep)")
+    r.add_argument("--seed", type=int, required=True, help="device seed (draws its constants)")
+    r.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    r.add_argument("--out", required=True, help="record file (JSON) to write")
+    t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
+    t.add_argument("records", nargs="+", help="record JSON files")
+    t.add_argument("--out", required=True, help="folder for cross_device.md / .csv and records.csv")
+    b = sub.add_parser("bench", help="run many devices in parallel and aggregate (resumable)", allow_abbrev=False)
+    b.add_argument("--n", type=int, default=10, help="devices per family and preset (default 10)")
+    b.add_argument("--families", default=",".join(FAMILIES), help="comma-separated families (default all)")
+    b.add_argument("--presets", default=",".join(PRESETS), help="comma-separated presets (default all)")
+    b.add_argument("--jobs", type=int, default=2, help="parallel processes (default 2)")
+    b.add_argument("--first-seed", type=int, default=0, help="first device seed (default 0)")
+    b.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
+    a = ap.parse_args(argv)
+    try:
+        if a.cmd == "run":
+            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile))
+            write_record(rec, a.out)
+            print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
+                  f"force {rec['force_pct']:.2f} % ({rec['status']})")
+        elif a.cmd == "table":
+            recs = [json.loads(Path(p).read_text()) for p in a.records]
+            write_tables(recs, a.out)
+            print(Path(a.out) / "cross_device.md")
+        else:
+            fams = [f for f in a.families.split(",") if f]
+            pres = [p for p in a.presets.split(",") if p]
+            for f in fams:
+                if f not in FAMILIES:
+                    raise ValueError(f"--families: unknown family {f!r}; expected some of {', '.join(FAMILIES)}")
+            for p in pres:
+                if p not in PRESETS:
+                    raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
+            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed)
+            print(Path(a.out) / "cross_device.md")
+    except (ValueError, OSError) as exc:
+        print(f"selfsense devices: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
