@@ -356,7 +356,46 @@ def score_tip(records: list[dict], k: float = 3.0) -> dict:
             "median_tip_shrink_error": float(np.median(errs)) if errs else float("nan"),
             "p75_tip_shrink_error": float(np.quantile(errs, 0.75)) if errs else float("nan"),
             "interval_coverage": float(np.mean(inside)) if inside else float("nan"),
-            "n_named": int(sum(r["named"] for r in rows)), "n_tip_real": int(sum(r["tip_real"] for r in rows))}
+            "n_named": int(sum(r["named"] for r in rows)), "n_tip_real": int(sum(r["tip_real"] for r in rows)),
+            "n_costly": int(sum(r["costly"] for r in cost_table(records))),
+            "n_costly_named": int(sum(r["named"] for r in cost_table(records)))}
+
+
+#: a case's effect "costs" Table 3 when removing it (the effect-free twin) lowers the mean by at least this [points]
+COST_POINTS = 3.0
+
+
+def cost_table(records: list[dict], cost: float = COST_POINTS) -> list[dict]:
+    """Per effect family of the tip tier: cases, cases where the effect costs >= ``cost`` points of Table 3 (case
+    minus its effect-free twin), how many of those the diagnosis names (among its effects, and top-1), and the median
+    relative error of the predicted shrink over the named costly cases."""
+    by: dict = {}
+    for r in records:
+        e = next(iter(r["manifest"]["effects"]))
+        by.setdefault(e, []).append(r)
+    rows = []
+    for e in sorted(by):
+        rs = by[e]
+        costly = [r for r in rs if r["true_shrink"] >= cost]
+        named = [r for r in costly if e in r["effects"]]
+        errs = [abs(r["predicted_shrink"][e] - r["true_shrink"]) / abs(r["true_shrink"]) for r in named
+                if r["predicted_shrink"].get(e) is not None]
+        rows.append({"effect": e, "cases": len(rs), "costly": len(costly), "named": len(named),
+                     "named_top1": sum(r["top"] == e for r in costly),
+                     "named_fraction": len(named) / len(costly) if costly else float("nan"),
+                     "max_cost": max((r["true_shrink"] for r in rs), default=float("nan")),
+                     "median_shrink_error": float(np.median(errs)) if errs else float("nan")})
+    return rows
+
+
+def cost_table_markdown(rows: list[dict], cost: float = COST_POINTS) -> str:
+    out = [f"| effect family | cases | costs >= {cost:g} points | named (any) | named top-1 | named fraction | "
+           "largest cost [points] | median shrink error (named, costly) |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        f = lambda x: "-" if not np.isfinite(x) else f"{x:.2f}"  # noqa: E731
+        out.append(f"| {r['effect']} | {r['cases']} | {r['costly']} | {r['named']} | {r['named_top1']} | "
+                   f"{f(r['named_fraction'])} | {f(r['max_cost'])} | {f(r['median_shrink_error'])} |")
+    return "\n".join(out) + "\n"
 
 
 def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> dict:
@@ -379,6 +418,8 @@ def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> 
           f"- effect named right (top-1): {sc['n_named']} / {n}; tip consequence > 3 floors: {sc['n_tip_real']} / {n}",
           f"- median |predicted - true| / |true| tip shrink over the {sc['n_scored']} cases named right with a real "
           f"tip consequence: **{sc['median_tip_shrink_error']:.3f}** (75th percentile "
-          f"{sc['p75_tip_shrink_error']:.3f}); true shrink inside the 90 % interval: {sc['interval_coverage']:.2f}"]
+          f"{sc['p75_tip_shrink_error']:.3f}); true shrink inside the 90 % interval: {sc['interval_coverage']:.2f}",
+          "", f"Cost against named, per effect family (cost = Table 3 of the case minus that of its effect-free twin):",
+          "", cost_table_markdown(cost_table(recs))]
     (out / "tip_scores.md").write_text("\n".join(md) + "\n")
     return sc
