@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["run_device", "aggregate", "aggregate_markdown", "bench", "write_tables"]
+__all__ = ["run_device", "aggregate", "aggregate_markdown", "bench", "write_tables", "PROTOCOLS"]
 
 
 def _default_pipeline_config() -> dict:
@@ -28,8 +28,16 @@ def _default_pipeline_config() -> dict:
     return {"calibration": {}, "estimation": {}}
 
 
-def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None) -> dict:
-    """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials)."""
+#: calibration protocols: ``thesis`` calibrates on the free-tip sine and the blocked sine only, as the thesis does
+#: (``000_18d138f03f1777c3.txt`` sec. 5.2: H(q) is calibrated on the sinusoidal input); ``three_trial`` adds a
+#: free-tip mixed-drive calibration trial (minor loops and holds)
+PROTOCOLS = ("thesis", "three_trial")
+
+
+def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
+               protocol: str = "three_trial") -> dict:
+    """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials; the
+    mixed-drive validation trials also on their own)."""
     from selfsense import io as sio
     from selfsense.report import tables
     from selfsense.sensing import SelfSensingEstimator
@@ -38,9 +46,13 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense.sim.simulate import simulate_dataset
     from selfsense.stages import sensing_config
 
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
     cfg = dict(config or _default_pipeline_config())
     sc = draw_device(family, seed, preset)
-    rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed),
+    if protocol == "thesis":
+        sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
+    rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0)}
     with tempfile.TemporaryDirectory(prefix="selfsense-device-") as tmp:
@@ -67,11 +79,16 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
             ests[t] = e
         pt = tables.per_trial_table(ests, meta.reset_index())
         t3 = tables.table3(pt).set_index("measurement")
+        # the mixed-drive validation trials (minor loops and holds the sine calibration never shows) on their own
+        mixed = pt[(pt["role"] == "validation") & (pt["signal"] == "mixed")]
+        mixed_pct = {m: float(g["percent_of_range"].mean()) for m, g in mixed.groupby("measurement")}
     hrep = est.fit_report_.get("hysteresis", {})
     rec.update({
         "status": "ok",
         "displacement_pct": float(t3.loc["displacement", "percent_of_range"]),
         "force_pct": float(t3.loc["force", "percent_of_range"]),
+        "mixed_displacement_pct": mixed_pct.get("displacement", float("nan")),
+        "mixed_force_pct": mixed_pct.get("force", float("nan")),
         "h_model": str(hrep.get("h_model", "")),
         "h_selected": str(hrep.get("selected", hrep.get("h_model", ""))),
         "h_fit_rms_v": float(hrep.get("rms_v", float("nan"))),
@@ -93,6 +110,11 @@ def aggregate(records: Iterable[Mapping[str, Any]]) -> pd.DataFrame:
             v = ok[f"{m}_pct"].to_numpy(dtype=float)
             row[f"{m}_median_pct"] = float(np.median(v)) if v.size else float("nan")
             row[f"{m}_p90_pct"] = float(np.percentile(v, 90)) if v.size else float("nan")
+        for m in ("displacement", "force"):
+            col = f"mixed_{m}_pct"
+            v = ok[col].to_numpy(dtype=float) if col in ok else np.array([])
+            v = v[np.isfinite(v)]
+            row[f"mixed_{m}_median_pct"] = float(np.median(v)) if v.size else float("nan")
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -101,7 +123,8 @@ def aggregate_markdown(agg: pd.DataFrame, targets: Mapping[str, tuple[float, flo
     """The cross-device Table 3 as Markdown, with the targets (median 5 / 8 % clean, 8 / 12 % drift) marked met / missed."""
     targets = targets or {"clean": (5.0, 8.0), "drift": (8.0, 12.0)}
     lines = ["| family | preset | devices (failed) | displacement median % | displacement p90 % | force median % | "
-             "force p90 % | target median (disp / force) |", "|---|---|---|---|---|---|---|---|"]
+             "force p90 % | mixed-drive validation trials: displacement / force median % | target median (disp / force) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for _, r in agg.iterrows():
         td, tf = targets.get(r["preset"], (float("nan"), float("nan")))
         md = "met" if r["displacement_median_pct"] <= td else "missed"
@@ -109,6 +132,8 @@ def aggregate_markdown(agg: pd.DataFrame, targets: Mapping[str, tuple[float, flo
         lines.append(f"| {r['family']} | {r['preset']} | {r['n_devices']} ({r['n_failed']}) | "
                      f"{r['displacement_median_pct']:.2f} | {r['displacement_p90_pct']:.2f} | "
                      f"{r['force_median_pct']:.2f} | {r['force_p90_pct']:.2f} | "
+                     f"{r.get('mixed_displacement_median_pct', float('nan')):.2f} / "
+                     f"{r.get('mixed_force_median_pct', float('nan')):.2f} | "
                      f"{td:g} / {tf:g}: {md} / {mf} |")
     for pre, g in agg.groupby("preset"):
         for m in ("displacement", "force"):
@@ -138,14 +163,14 @@ def _config_from(path: str | None) -> dict:
 
 
 def _job(args):
-    family, preset, seed, cfg, out = args
-    rec = run_device(family, preset, seed, cfg)
+    family, preset, seed, cfg, out, protocol = args
+    rec = run_device(family, preset, seed, cfg, protocol)
     write_record(rec, out)
     return rec
 
 
 def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
-          first_seed: int = 0, progress: bool = True) -> pd.DataFrame:
+          first_seed: int = 0, progress: bool = True, protocol: str = "three_trial") -> pd.DataFrame:
     """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
     file per device under ``out_dir/records`` (existing records are reused: resumable), then write
     ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``."""
@@ -161,9 +186,13 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
             for seed in range(first_seed, first_seed + n):
                 p = rec_dir / f"{fam}_{pre}_{seed}.json"
                 if p.exists():
-                    recs.append(json.loads(p.read_text()))
+                    rec = json.loads(p.read_text())
+                    if rec.get("protocol", "three_trial") != protocol:
+                        raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}; this "
+                                         f"run asks for {protocol!r}: use another --out folder")
+                    recs.append(rec)
                 else:
-                    todo.append((fam, pre, seed, config, str(p)))
+                    todo.append((fam, pre, seed, config, str(p), protocol))
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from tqdm import tqdm
@@ -185,8 +214,11 @@ def write_tables(recs, out_dir: str | Path) -> None:
     write_text_atomic(df.drop(columns=[c for c in ("warnings",) if c in df]).to_csv(index=False, float_format="%.6g"),
                       out_dir / "records.csv")
     write_text_atomic(agg.to_csv(index=False, float_format="%.6g"), out_dir / "cross_device.csv")
+    protocols = sorted({r.get("protocol", "three_trial") for r in recs})
     write_text_atomic(
         "# Cross-device accuracy (thesis Table 3 per device family and preset)\n\n"
+        f"Calibration protocol: {', '.join(protocols)} (thesis: free-tip and blocked sines only; three_trial: with a "
+        "free-tip mixed-drive calibration trial besides). "
         "Validation trials, mean |estimate - reference| / reference range per trial, then the mean over trials of "
         "each measurement (Table 3), per device; median and 90th percentile over devices.\n\n"
         + aggregate_markdown(agg), out_dir / "cross_device.md")

@@ -105,3 +105,19 @@ def test_unknown_family_and_preset_are_refused():
         draw_device("bogus", 0)
     with pytest.raises(ValueError, match="unknown device preset"):
         draw_device("preisach", 0, "bogus")
+
+
+def test_cross_device_protocols_and_the_mixed_drive_column():
+    """The cross-device benchmark knows the thesis protocol (sines only) and the three-trial one, refuses any other,
+    and aggregates the mixed-drive validation trials in their own column."""
+    from selfsense.devices import PROTOCOLS, aggregate, aggregate_markdown, run_device
+
+    assert set(PROTOCOLS) == {"thesis", "three_trial"}
+    with pytest.raises(ValueError, match="protocol: expected one of"):
+        run_device("preisach", "clean", 0, protocol="two_sines")
+    recs = [{"family": "gpi", "preset": "clean", "seed": s, "status": "ok", "displacement_pct": d, "force_pct": 2.0,
+             "mixed_displacement_pct": m, "mixed_force_pct": 3.0} for s, d, m in ((0, 1.0, 4.0), (1, 3.0, 6.0))]
+    agg = aggregate(recs)
+    assert agg.loc[0, "displacement_median_pct"] == pytest.approx(2.0)
+    assert agg.loc[0, "mixed_displacement_median_pct"] == pytest.approx(5.0)
+    assert "5.00 / 3.00" in aggregate_markdown(agg)

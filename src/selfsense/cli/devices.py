@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from selfsense.devices import _config_from, bench, run_device, write_record, write_tables
+from selfsense.devices import PROTOCOLS, _config_from, bench, run_device, write_record, write_tables
 
 __all__ = ["main"]
 
@@ -24,6 +24,8 @@ def main(argv=None) -> int:
     r.add_argument("--preset", default="clean", choices=PRESETS, help="clean, or drift (leakage + offset + creep)")
     r.add_argument("--seed", type=int, required=True, help="device seed (draws its constants)")
     r.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    r.add_argument("--protocol", default="three_trial", choices=PROTOCOLS,
+                   help="calibration trials: thesis (free-tip and blocked sines only) or three_trial (default)")
     r.add_argument("--out", required=True, help="record file (JSON) to write")
     t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
     t.add_argument("records", nargs="+", help="record JSON files")
@@ -35,11 +37,14 @@ def main(argv=None) -> int:
     b.add_argument("--jobs", type=int, default=2, help="parallel processes (default 2)")
     b.add_argument("--first-seed", type=int, default=0, help="first device seed (default 0)")
     b.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
+    b.add_argument("--protocol", default="three_trial", choices=PROTOCOLS,
+                   help="calibration trials: thesis (free-tip and blocked sines only, as the thesis) or three_trial "
+                        "(plus a free-tip mixed drive; default)")
     b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "run":
-            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile))
+            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol)
             write_record(rec, a.out)
             print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
                   f"force {rec['force_pct']:.2f} % ({rec['status']})")
@@ -56,7 +61,7 @@ def main(argv=None) -> int:
             for p in pres:
                 if p not in PRESETS:
                     raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
-            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed)
+            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol)
             print(Path(a.out) / "cross_device.md")
     except (ValueError, OSError) as exc:
         print(f"selfsense devices: error: {exc}", file=sys.stderr)
