@@ -616,7 +616,11 @@ def main(argv=None):
         # figure tables from them (one source for every number)
         res["command"] = "python benchmarks/run.py " + " ".join(argv)
         res["quick"] = bool(args.quick)
-        Path(args.out).with_suffix(".json").write_text(json.dumps(res, indent=1, sort_keys=True, default=str) + "\n")
+        # without the captured stderr of the child processes (temporary paths of this run, not figures)
+        res_json = {k: ({kk: vv for kk, vv in v.items() if kk != "stderr"} if isinstance(v, dict) else v)
+                    for k, v in res.items()}
+        Path(args.out).with_suffix(".json").write_text(json.dumps(res_json, indent=1, sort_keys=True, default=str)
+                                                       + "\n")
         print(text)
     else:
         print(json.dumps(res, indent=1, default=str))
