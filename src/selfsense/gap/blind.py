@@ -407,11 +407,21 @@ def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _write_records(out / "tip_cases.jsonl.gz", recs)
+    write_tip_scores(recs, sc, out, command or f"selfsense gap blind --tip --n {n} --seed {seed} --jobs {jobs} "
+                                             f"--out {out}")
+    return sc
+
+
+def write_tip_scores(recs: list[dict], sc: dict, out: Path, command: str) -> None:
+    """tip_scores.json and tip_scores.md of a tip-tier campaign (also from committed records, to re-score them)."""
+    n = len(recs)
+    out = Path(out)
     (out / "tip_scores.json").write_text(json.dumps(sc, indent=1, default=float))
     md = ["# Tip tier: how far a named effect shrinks the tip error", "",
-          f"Command: `{command or f'selfsense gap blind --tip --n {n} --seed {seed} --jobs {jobs} --out {out}'}`", "",
+          f"Command: `{command}`", "",
           f"{n} single-effect cases (families in turn), the project's default estimator (`SensingConfig()`, as the "
-          "pipeline runs it). Predicted: the named effect corrected with its stage-fitted coefficients fixed, the "
+          "pipeline runs it). Predicted: the named effect corrected with its stage-fitted coefficients fixed (a member "
+          "of the estimator's charge link: the estimator recalibrated with that member forced on), the "
           "estimator recalibrated on the corrected calibration trials. True: the same device, drive and noise "
           "re-simulated without the effect.", "",
           f"- tip noise floor: {sc['tip_noise_floor']:.3f} points of range",
@@ -422,4 +432,3 @@ def run_tip_tier(n: int, seed: int, jobs: int, out: Path, command: str = "") -> 
           "", f"Cost against named, per effect family (cost = Table 3 of the case minus that of its effect-free twin):",
           "", cost_table_markdown(cost_table(recs))]
     (out / "tip_scores.md").write_text("\n".join(md) + "\n")
-    return sc
