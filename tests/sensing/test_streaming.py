@@ -321,3 +321,79 @@ def test_cli_reads_every_log_format(fitted, tmp_path, fmt):
     assert len(got) == len(raw)
     for col in ("t", "dx_hat", "f_hat"):
         _assert_close(got[col].to_numpy(), ref[col].to_numpy(), f"{fmt} {col}")
+
+
+def test_selfsense_stream_piped_line_by_line_gives_the_batch_result(fitted, tmp_path):
+    """`selfsense stream` in a child process, the log written into its stdin one line at a time and each estimate
+    read back before the next line is sent (what a DAQ program piping into it sees): equal to the batch estimate."""
+    import subprocess
+    import sys
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    raw = _raw(d, "obj_val")
+    proc = subprocess.Popen([sys.executable, "-m", "selfsense", "stream", "--model", str(model), "--dataset", str(d)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
+    proc.stdin.write("t,u_cmd,v_shunt,relay\n")
+    proc.stdin.flush()
+    assert proc.stdout.readline().strip() == "t,dx_hat,f_hat"
+    rows = []
+    for t, u, v, r in raw[["t", "u_cmd", "v_shunt", "relay"]].itertuples(index=False):
+        proc.stdin.write(f"{t!r},{u!r},{v!r},{r!r}\n")
+        proc.stdin.flush()
+        rows.append([float(x) for x in proc.stdout.readline().split(",")])   # answered before the next line
+    proc.stdin.close()
+    assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    got = np.array(rows)
+    batch = est.estimate(sigs["obj_val"])
+    np.testing.assert_array_equal(got[:, 0], raw["t"].to_numpy())
+    _assert_close(got[:, 1], batch["dx_hat"].to_numpy(), "selfsense stream dx_hat")
+    _assert_close(got[:, 2], batch["f_hat"].to_numpy(), "selfsense stream f_hat")
+
+
+def test_selfsense_stream_errors_name_the_line_and_the_model(fitted, tmp_path, capsys):
+    from selfsense.cli import main as selfsense_main
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    log = tmp_path / "log.csv"
+    log.write_text("t,u_cmd,v_shunt,relay\n0.0,0.0,0.001,1\n0.001,0.0,oops,1\n")
+    assert selfsense_main(["stream", "--model", str(model), "--dataset", str(d), "--input", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert "line 3" in err and "oops" in err
+    # a model that does not stream sample by sample is refused at once, naming the file
+    d2 = est.to_dict()
+    d2["leakage_s"] = 1e-9
+    m2 = tmp_path / "leaky.json"
+    m2.write_text(json.dumps(d2))
+    assert selfsense_main(["stream", "--model", str(m2), "--dataset", str(d), "--input", str(log)]) == 2
+    assert "leaky.json" in capsys.readouterr().err
+
+
+def test_selfsense_stream_follows_a_file_that_is_still_being_written(fitted, tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    raw = _raw(d, "obj_val")
+    lines = [f"{t!r},{u!r},{v!r},{r!r}\n" for t, u, v, r in raw[["t", "u_cmd", "v_shunt", "relay"]]
+             .itertuples(index=False)]
+    log = tmp_path / "growing.csv"
+    log.write_text("t,u_cmd,v_shunt,relay\n" + "".join(lines[:300]))
+    proc = subprocess.Popen([sys.executable, "-m", "selfsense", "stream", "--model", str(model), "--dataset", str(d),
+                             "--input", str(log), "--follow"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, bufsize=1)
+    got = [proc.stdout.readline() for _ in range(301)]          # header + the 300 samples already there
+    with log.open("a") as fh:                                   # the DAQ program writes on
+        fh.write("".join(lines[300:]))
+    got += [proc.stdout.readline() for _ in range(len(lines) - 300)]
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    rows = np.array([[float(x) for x in g.split(",")] for g in got[1:]])
+    batch = est.estimate(sigs["obj_val"])
+    _assert_close(rows[:, 1], batch["dx_hat"].to_numpy(), "followed dx_hat")

@@ -27,6 +27,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
             "run the Snakemake pipeline in the current directory (options go to Snakemake)"),
     "estimate": ("selfsense.cli.estimate", "main",
                  "estimate a DAQ log with a fitted model (CSV, Parquet, TDMS, MAT; streamed where the model allows)"),
+    "stream": ("selfsense.cli.stream", "main",
+               "estimate samples as they come: CSV lines on stdin (or a growing file) -> t,dx_hat,f_hat lines"),
     "export": ("selfsense.cli.export", "main",
                "write each trial's results as .mat and .csv with units, V, q, estimates, coefficients, config"),
     "gap": ("selfsense.cli.gap", "main", "sim-to-real gap diagnostic (diagnose, blind, blind-calibrate)"),
