@@ -36,5 +36,5 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     for reason, n in reasons.most_common():  # each reason says what would run them
         tr.write_line(f"  {n:3d} x {reason}")
     if warned:
-        tr.write_line("  the scale-out test ran through the fake cluster-generic scheduler, not SLURM (set "
-                      "SELFSENSE_TEST_SLURM=1 to start a local SLURM cluster as root)")
+        why = str(warned[0].message).split("SLURM NOT USED: ", 1)[-1].split(". Running through", 1)[0]
+        tr.write_line(f"  the scale-out test ran through the fake cluster-generic scheduler, not SLURM: {why}")
