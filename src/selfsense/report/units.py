@@ -40,5 +40,5 @@ COEFFICIENTS: dict[str, str] = {
 
 
 def coef_unit(name: str) -> str:
-    """Unit of a sensing coefficient; augmentation coefficients (``extra_*``) depend on their regressor."""
+    """Unit of a sensing coefficient ("see regressor" for a name this table does not know)."""
     return COEFFICIENTS.get(name, "see regressor")

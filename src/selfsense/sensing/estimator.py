@@ -31,7 +31,7 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
@@ -48,7 +48,6 @@ __all__ = [
     "SensingConfig",
     "SelfSensingEstimator",
     "CalibrationError",
-    "Augmentation",
     "h_target",
 ]
 
@@ -62,18 +61,6 @@ N_DRIFT_ALTERNATIONS = 1
 
 class CalibrationError(ValueError):
     """The calibration trials cannot determine the model (missing trial roles, degenerate data...)."""
-
-
-class Augmentation(Protocol):  # pragma: no cover - typing only
-    """Structural augmentation of the estimator used by the gap diagnostic (all methods optional)."""
-
-    name: str
-
-    def fit(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame, estimator: "SelfSensingEstimator") -> None: ...
-
-    def transform(self, df: pd.DataFrame) -> pd.DataFrame: ...
-
-    def features(self, df: pd.DataFrame) -> pd.DataFrame: ...
 
 
 @dataclass
@@ -427,7 +414,6 @@ class SelfSensingEstimator:
 
     config: SensingConfig = field(default_factory=SensingConfig)
     rig: Any = None
-    augmentations: tuple = ()
     #: charge-link members forced on or off (:mod:`selfsense.chain.charge`): ``{"leakage": "auto"|"on"|"off",
     #: "offset_drift": "auto"|"on"|"off"}``; "auto" (the default) lets the calibration data and the reference-free
     #: hold evidence decide (``drift: auto``); the gap diagnostic forces a member to score the chain with it
@@ -446,7 +432,6 @@ class SelfSensingEstimator:
     hold_evidence_: dict = field(default_factory=dict, init=False)
     #: the H(q) fitted beside the per-trial drift columns; the rest-segment drift estimate uses it (None: hysteresis_)
     drift_hysteresis_: Any = field(default=None, init=False, repr=False)
-    _extra_names: list = field(default_factory=list, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
     def _calibration_set(self, trials, meta):
@@ -455,14 +440,14 @@ class SelfSensingEstimator:
         missing = [t for t in cal.index if t not in trials]
         if missing:
             raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
-        return cal, {t: self._transform(trials[t]) for t in cal.index}
+        return cal, {t: trials[t] for t in cal.index}
 
     def fit_hysteresis(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
         """Calibrate H(q) on the free-tip calibration trial (thesis eq. 55 or paper eq. 23).
 
         ``trials`` maps trial id -> prepared DataFrame (``selfsense.signals.prepare_trial``); ``meta`` is trials.csv
-        indexed by trial id (or with a ``trial`` column). Only calibration trials are read; augmentations are
-        fitted here on the calibration trials.
+        indexed by trial id (or with a ``trial`` column). Only calibration trials are fitted on; every trial's
+        V, Q and relay feed the reference-free hold evidence (:func:`selfsense.chain.charge.hold_evidence`).
         """
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
         cal = meta[meta["role"] == "calibration"]
@@ -483,10 +468,6 @@ class SelfSensingEstimator:
             {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}).to_dict()
         cal_trials = {t: trials[t] for t in cal.index}
 
-        for aug in self.augmentations:
-            if hasattr(aug, "fit"):
-                aug.fit(cal_trials, cal, self)
-        cal_trials = {t: self._transform(df) for t, df in cal_trials.items()}
 
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
@@ -929,7 +910,6 @@ class SelfSensingEstimator:
         rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if cfg.rest_offset == "auto"
                               else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
         Xf, yf = np.vstack(Xf), np.concatenate(yf)
-        names = ["Q", "V_p"] + self._extra_names
         dx0 = 0.0
         if rest_ok:
             cd = _lstsq(np.column_stack([Xd, np.ones(len(Xd))]), yd)
@@ -938,40 +918,35 @@ class SelfSensingEstimator:
             cd = _lstsq(Xd, yd)
         regression = cfg.regression
         zf = force_regressor(Xf[:, 0], Xf[:, 1], n_A, C_p)
-        Zf = np.column_stack([zf, Xf[:, 2:]]) if Xf.shape[1] > 2 else zf[:, None]
+        Zf = zf[:, None]
         if regression == "auto":
             # thesis mode: eq. (52) is exact for the force row in the eq. (55) convention (free-tip V_p is linear in
             # q); on-site mode: paper sec. IV-B regresses the four free terms (A1, A2, S2A1 + S3/n_A alpha, ...).
             regression = "approx" if cfg.h_mode == "thesis" else "full"
         self.fit_report_["regression_form"] = regression
         if regression == "approx":
-            # f = (A3 / n_A) (Q - n_A C_p V_p) + extra   (eq. 52): one physical coefficient A3
+            # f = (A3 / n_A) (Q - n_A C_p V_p)   (eq. 52): one physical coefficient A3
             cf = _lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)
             B21, B22 = force_coefficients(A3, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22}
-            extra_f = cf[1:]
         elif regression == "twoport":
-            # f = (A3 / n_A) (Q - n_A C_p V_p) + S2 dx + extra (eq. 46 = S3 x_pzt + S2 dx_tip), S2 >= 0 (a passive
+            # f = (A3 / n_A) (Q - n_A C_p V_p) + S2 dx (eq. 46 = S3 x_pzt + S2 dx_tip), S2 >= 0 (a passive
             # tip port, eq. 8): the tip-stiffness column is the displacement row (A1 Q + A2 V_p) on the force rows
             dxf = tip_displacement(Xf[:, 0], Xf[:, 1], float(cd[0]), float(cd[1]))
-            Tf = np.column_stack([zf, dxf, Xf[:, 2:]])
+            Tf = np.column_stack([zf, dxf])
             lower = np.full(Tf.shape[1], -np.inf)
             lower[1] = 0.0
             cf = ridge_lstsq(Tf, yf, np.zeros(Tf.shape[1], bool), 0.0, lower=lower)   # bounded, column-scaled
             A3, S2 = float(cf[0] * n_A), float(cf[1])
             B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
-            extra_f = cf[2:]
         else:
             cf = _lstsq(Xf, yf)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
                           "A3": float(cf[0] * n_A)}
-            extra_f = cf[2:]
         self.coef_["dx0"] = dx0
         self.fit_report_["rest_offset"] = {**rest_info, "dx0_m": dx0}
-        self.coef_["extra_dx"] = {n: float(c) for n, c in zip(names[2:], cd[2:])}
-        self.coef_["extra_f"] = {n: float(c) for n, c in zip(names[2:], extra_f)}
         self.fit_report_["regression"] = {
             "n_displacement_equations": int(len(yd)),
             "n_force_equations": int(len(yf)),
@@ -998,34 +973,16 @@ class SelfSensingEstimator:
         self.ranges_ = {"dx": [min(dx_min, 0.0), max(dx_max, 0.0)], "f": [0.0, max(f_max, 0.0)]}
 
     # ------------------------------------------------------------------ helpers
-    def _transform(self, df: pd.DataFrame) -> pd.DataFrame:
-        for aug in self.augmentations:
-            if hasattr(aug, "transform"):
-                df = aug.transform(df)
-        return df
-
     def _regressors(self, df: pd.DataFrame) -> np.ndarray:
         Q = self._charge(df)
         V_p = piezo_voltage(df["V"].to_numpy(dtype=float), self._h(Q, df))   # thesis eq. (27)
-        cols = [Q, V_p]
-        names = []
-        for aug in self.augmentations:
-            if hasattr(aug, "features"):
-                F = aug.features(df)
-                cols += [np.asarray(F[c], dtype=float) for c in F.columns]
-                names += [f"{getattr(aug, 'name', type(aug).__name__)}:{c}" for c in F.columns]
-        self._extra_names = names
-        return np.column_stack(cols)
+        return np.column_stack([Q, V_p])
 
     def _predict_raw(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = self.coef_
         # thesis eq. (52) on the total charge Q + q_0: the rest closing dx0 = A1 q_0 (0 unless adopted, _rest_offset)
         dx = tip_displacement(X[:, 0], X[:, 1], c["A1"], c["A2"], c.get("dx0", 0.0))
         f = tip_force(X[:, 0], X[:, 1], c["B21"], c["B22"])          # thesis eq. (46) / (52)
-        for j, v in enumerate(c.get("extra_dx", {}).values()):
-            dx = dx + v * X[:, 2 + j]
-        for j, v in enumerate(c.get("extra_f", {}).values()):
-            f = f + v * X[:, 2 + j]
         return dx, f
 
     # ------------------------------------------------------------------ estimation
@@ -1037,7 +994,6 @@ class SelfSensingEstimator:
         """
         if self.hysteresis_ is None:
             raise RuntimeError("SelfSensingEstimator.estimate called before fit()")
-        df = self._transform(df)
         X = self._regressors(df)
         dx_raw, f_raw = self._predict_raw(X)
         relay = df["relay"].to_numpy() >= 0.5
@@ -1086,7 +1042,12 @@ class SelfSensingEstimator:
         est.drift_hysteresis_ = _h_from_dict(d["drift_hysteresis"]) if d.get("drift_hysteresis") else None
         est.h_slope_ = float(d["h_slope"])
         est.onsite_ = dict(d.get("onsite", {}))
-        est.coef_ = dict(d["coef"])
+        coef = dict(d["coef"])
+        extra = {k: coef.pop(k) for k in ("extra_dx", "extra_f") if k in coef}
+        if any(extra.values()):  # a model fitted with the retired gap library's augmentation terms
+            raise ValueError(f"model JSON: coef {sorted(k for k, v in extra.items() if v)} hold augmentation terms of "
+                             "the retired tip-level gap library, which this version cannot evaluate; refit the model")
+        est.coef_ = coef
         est.ranges_ = dict(d["ranges"])
         est.fit_report_ = dict(d.get("fit_report", {}))
         est.calibration_trials_ = list(d.get("calibration_trials", []))

@@ -24,8 +24,8 @@ loop per sample:
 5. Post-processing (thesis sec. 5.2, Fig. 24): sliding DC offset on dx (and on f if configured) that resets to the
    current value whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to the calibrated ranges.
 
-Units: SI (s, V, C, m, N). Supported models: ``h_model = "modified_pi"`` without augmentations (the gap
-library's augmentations are batch-only).
+Units: SI (s, V, C, m, N). Supported models: ``h_model = "modified_pi"`` with the thesis' identification and
+without drift compensation.
 """
 from __future__ import annotations
 
@@ -332,7 +332,7 @@ class SelfSensingStream:
 
     Parameters
     ----------
-    estimator : a fitted ``SelfSensingEstimator`` (``h_model='modified_pi'``, no augmentations).
+    estimator : a fitted ``SelfSensingEstimator`` (``h_model='modified_pi'``, thesis identification, no drift compensation).
     rig : ``selfsense.io.Rig`` or rig.yaml mapping (default ``estimator.rig``): needs ``shunt_resistance_ohm``,
         ``inamp_gain``, ``amplifier_gain``.
     dt : sample period [s] used when samples come without time stamps (``t=None``).
@@ -357,8 +357,6 @@ class SelfSensingStream:
         if type(h).__name__ != "ModifiedPI":
             raise NotImplementedError(
                 f"SelfSensingStream supports h_model='modified_pi' only, got {type(h).__name__}")
-        if estimator.augmentations or estimator.coef_.get("extra_dx") or estimator.coef_.get("extra_f"):
-            raise NotImplementedError("SelfSensingStream does not support estimator augmentations (batch only)")
         rig = estimator.rig if rig is None else rig
         if rig is None:
             raise ValueError("SelfSensingStream needs the rig (shunt resistance, gains)")
