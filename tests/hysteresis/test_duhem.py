@@ -150,7 +150,7 @@ def test_default_candidates_include_a_creep_free_duhem_for_long_creep_free_recor
     """A 300 s record (two segments) of a Duhem truth with a slowly modulated amplitude and no creep: with the creep
     bank the Duhem fit trades the slow creep columns against its state (blocked CV about 0.8 V, measured); the
     creep-free candidate of DEFAULT_CANDIDATES fits it to < 0.1 V and is selected."""
-    from selfsense.hysteresis.models._duhem import duhem_run
+    from selfsense.hysteresis.models._duhem import duhem_run, duhem_state
     from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES
 
     n, dt = 60_000, 5e-3
@@ -162,7 +162,7 @@ def test_default_candidates_include_a_creep_free_duhem_for_long_creep_free_recor
     for i in range(2):
         u = 0.5 * (1 - np.cos(2 * np.pi * 0.5 * t)) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.013 * t + i))
         qs.append(QREF * u)
-        ys.append(duhem_run(u, c, 3, -5.0, 10.0, 2e-3, -50.0, 50.0, 1, False)[0] + 20 * u
+        ys.append(duhem_run(u, c, 3, -5.0, 10.0, 2e-3, -50.0, 50.0, 1, False, duhem_state())[0] + 20 * u
                   + 0.01 * rng.standard_normal(n))
     cands = tuple(x for x in DEFAULT_CANDIDATES if x[0] in ("linear", "pi", "duhem"))
     assert ("duhem", {"degree": 3, "ridge": 1e-7, "creep": False}) in DEFAULT_CANDIDATES

@@ -1,34 +1,41 @@
-"""Streaming (sample-by-sample or block) self-sensing estimator with all state carried.
+"""Streaming (sample-by-sample or block) self-sensing estimator with all state carried, for every model.
 
 The batch pipeline is ``selfsense.stages.ingest`` (raw log -> SI signals, ``V``, ``q``) followed by
 ``SelfSensingEstimator.estimate``. :class:`SelfSensingStream` reproduces it on raw DAQ samples
-(``u_cmd`` [V], ``v_shunt`` [V], ``relay`` 0/1, ``t`` [s]) one sample or one block at a time, in one fused numba
-loop per sample:
+(``u_cmd`` [V], ``v_shunt`` [V], ``relay`` 0/1, ``t`` [s]) one sample or one block at a time, in three links that
+each carry their state (O(1) memory per sample):
 
-1. SI conversion (docs/data_format.md): ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``;
-   actuator voltage ``V = V_c - V_s`` (``000_18d138f03f1777c3.txt`` eq. (56)).
-2. Charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal rule, reset to 0 while ``relay == 1``,
-   written exactly as ``selfsense.signals.charge_from_shunt`` does it: a running cumulative sum ``c`` of the
-   increments ``0.5 * (i_k + i_{k-1}) * (t_k - t_{k-1})`` (zero on shorted samples) minus its value at the last
-   shorted sample, so that the charge is bit-identical to the batch ``np.cumsum`` formulation. The in-amp offset
-   is the mean of ``V_s`` over the FIRST shorted (relay) segment; it is known exactly when that segment ends,
-   which is before it is first needed (charge is 0 on shorted samples), so streaming loses nothing -- provided
-   the log starts with its relay segment (otherwise pass ``offset=<volts>``).
-3. ``V_H = H(Q) = sign * (G[Q] - c Q)`` with ``G`` the modified Prandtl-Ishlinskii operator with creep, eq. (42)
-   (play eqs. 29-31, creep eqs. 38-39 with ``g = 1 - exp(-a T_s)``, superposition eq. 33), same recursion as
-   ``selfsense.hysteresis._kernels.gamma_kernel`` (state: play states, creep states, previous input), and the
-   estimator's gauge (``GaugedH``: ``sign``, ``c``; 1 and 0 for a bare ``ModifiedPI``).
-4. ``V_p = V - V_H`` (eq. 27); ``dx_raw = A1 Q + A2 V_p``, ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted.
-   Steps 2 and 4 call the scalar kernels of ``selfsense.sensing.core`` (inlined), the definitions the batch
-   estimator and ``charge_from_shunt`` evaluate on arrays.
-5. Post-processing (thesis sec. 5.2, Fig. 24): sliding DC offset on dx (and on f if configured) that resets to the
-   current value whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to the calibrated ranges.
+1. **Front** (one compiled loop, :func:`front_kernel`): SI conversion (docs/data_format.md)
+   ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``, actuator voltage ``V = V_c - V_s``
+   (``000_18d138f03f1777c3.txt`` eq. (56)); charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal
+   rule, reset to 0 while ``relay == 1``, written exactly as ``selfsense.signals.charge_from_shunt`` does it (a
+   running cumulative sum of the increments minus its value at the last shorted sample, so that the charge is
+   bit-identical to the batch ``np.cumsum``). The in-amp offset is the mean of ``V_s`` over the FIRST shorted
+   segment, known when that segment ends, before it is first needed (charge is 0 on shorted samples) -- provided
+   the log starts with its relay segment (otherwise pass ``offset=<volts>``). The **leakage member** (a fitted
+   conductance ``g``, ``leakage_s`` in the model JSON) subtracts ``g int V dt``, the same running trapezoid on V
+   restarted at the relay (``SelfSensingEstimator._charge``, ``integral_v``).
+2. **H(Q)** for every model the estimator can hold: the registry kinds ``linear``, ``pi``, ``preisach``, ``ri``,
+   ``duhem``, ``modified_pi`` (their ``predict(q, dt, state)`` carries the operators' memory: play and creep states,
+   the Preisach grid's stack of dominant extrema, the RI model's extrema memory, the Duhem map's state) and the
+   thesis identification's ``GaugedH`` (Kuhnen's modified PI with creep, eq. 42, in the gauge
+   ``sign * (G[Q] - c Q)``), ``RICreepH`` and ``RIModel`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11). Batch
+   evaluation is the same code fed one block, so the stream equals it on any split of the samples.
+3. **Back** (one compiled loop, :func:`back_kernel`): ``V_p = V - V_H`` (eq. 27); ``dx_raw = A1 Q + A2 V_p + dx0``
+   (the rest offset member), ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted (the kernels of
+   ``selfsense.sensing.core``, which the batch estimator evaluates on arrays); sliding DC offset (thesis sec. 5.2,
+   Fig. 24) on dx (and f if configured), reset whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to
+   the calibrated ranges.
 
-Units: SI (s, V, C, m, N). Supported models: ``h_model = "modified_pi"`` with the thesis' identification and
-without drift compensation.
+H is evaluated at the sample time ``dt`` given to the stream, or the calibration's when the samples come with time
+stamps only (the batch uses the trial's median sample period: the same when the log is sampled at the calibration
+rate). The **offset-drift member** (``offset_drift``: the charge drift fitted over the rest segments of the whole
+trial, ``SelfSensingEstimator.rest_drift``) looks at samples that have not arrived yet: a model that carries it is
+refused, naming the member (refit with ``calibration: drift: off`` to stream). Units: SI (s, V, C, m, N).
 """
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any, Mapping
@@ -38,24 +45,18 @@ from numba import njit
 
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
-__all__ = ["SelfSensingStream", "StreamError"]
+__all__ = ["SelfSensingStream", "StreamError", "HStream", "stream_kinds"]
 
-# same fast-math set as selfsense.hysteresis._kernels (reassociation lets LLVM vectorise the operator sums)
-_FM = {"reassoc", "nsz", "contract"}
-# the streaming kernels: reassociation (vectorised operator sums) but no contraction, see _one
-_FM_STREAM = {"reassoc", "nsz"}
-
-# ---- state vector layout (float64) --------------------------------------------------------------------------
-_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _X_LAST, _DX_DC, _F_DC = range(12)
-_NS_FIXED = 12
-# offset modes
+# ---- front state (float64) ------------------------------------------------------------------------------------
+(_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE) = range(12)
+_NS_FRONT = 12
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
-
-# ---- parameter vector layout (float64) ----------------------------------------------------------------------
-(_P_R, _P_INAMP, _P_GAIN, _P_A1, _P_A2, _P_B21, _P_B22, _P_ZL, _P_DXLO, _P_DXHI, _P_FLO, _P_FHI, _P_DCDX,
- _P_DCF, _P_LIMIT, _P_B, _P_W0, _P_NH, _P_NC, _P_NP, _P_NN, _P_HSIGN, _P_HC) = range(23)
-_P_DX0 = 23   # rest closing dx0 [m] of the displacement row (SelfSensingEstimator._rest_offset)
-_NP_FIXED = 24
+# ---- front parameters
+_F_R, _F_INAMP, _F_GAIN, _F_G = range(4)
+# ---- back state / parameters
+_DX_DC, _F_DC = range(2)
+(_B_A1, _B_A2, _B_B21, _B_B22, _B_DX0, _B_ZL, _B_DXLO, _B_DXHI, _B_FLO, _B_FHI, _B_DCDX, _B_DCF,
+ _B_LIMIT) = range(13)
 
 # status codes returned by the kernels
 _OK = 0
@@ -66,30 +67,6 @@ _ERR_TIME = 3
 
 class StreamError(ValueError):
     """The samples cannot be processed as a stream (no leading relay segment for the offset, bad relay, time)."""
-
-
-@njit(inline="always")
-def _views(P, S):
-    nH = int(P[_P_NH])
-    nC = int(P[_P_NC])
-    nP = int(P[_P_NP])
-    nN = int(P[_P_NN])
-    o = _NP_FIXED
-    rH = P[o:o + nH]
-    wH = P[o + nH:o + 2 * nH]
-    o += 2 * nH
-    rC = P[o:o + nC]
-    wC = P[o + nC:o + 2 * nC]
-    gC = P[o + 2 * nC:o + 3 * nC]
-    o += 3 * nC
-    rSp = P[o:o + nP]
-    wSp = P[o + nP:o + 2 * nP]
-    o += 2 * nP
-    rSn = P[o:o + nN]
-    wSn = P[o + nN:o + 2 * nN]
-    p = S[_NS_FIXED:_NS_FIXED + nH]
-    c = S[_NS_FIXED + nH:_NS_FIXED + nH + nC]
-    return rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c
 
 
 @njit(cache=True)
@@ -118,231 +95,219 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
     return _OK, q, csum, base, t_last
 
 
-@njit(inline="always")
-def _gamma_step(P, S, xk, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c):
-    """One sample of the modified PI operator G, eq. (42): play (31), creep (39), superposition (33); the same
-    recursion as ``selfsense.hysteresis._kernels.gamma_kernel``. Updates p, c, S[x_last]. Inlined at numba-IR
-    level (a real call would pass 14 arrays with reference counting on every sample)."""
-    u = P[_P_B]
-    for i in range(rH.shape[0]):
-        zi = max(xk - rH[i], min(xk + rH[i], p[i]))
-        p[i] = zi
-        u += wH[i] * zi
-    xl = S[_X_LAST]
-    if not np.isnan(xl):
-        for j in range(rC.shape[0]):
-            cj = c[j]
-            tt = max(xl - rC[j], min(xl + rC[j], cj))
-            cj = cj + gC[j] * (tt - cj)
-            c[j] = cj
-            u += wC[j] * cj
-    else:
-        for j in range(rC.shape[0]):
-            u += wC[j] * c[j]
-    S[_X_LAST] = xk
-    g = P[_P_W0] * u
-    for i in range(rSp.shape[0]):
-        g += wSp[i] * max(u - rSp[i], 0.0)
-    for i in range(rSn.shape[0]):
-        g += wSn[i] * min(u - rSn[i], 0.0)
-    return g
-
-
-@njit(inline="always")
-def _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c, aux, k):
-    """One sample through the whole chain; returns (status, dx_hat, f_hat). State S, p, c updated in place.
-
-    Compiled with reassociation only (``_FM_STREAM``: lets LLVM vectorise the operator sums) and without FMA
-    contraction, so V and the linear combinations round exactly as the NumPy batch code; the charge is computed
-    in the strict scalar function ``_charge``."""
-    if rk != 0.0 and rk != 1.0:
-        return _ERR_RELAY_VALUE, 0.0, 0.0
-    shorted = rk == 1.0
-    Vs = vk / P[_P_INAMP]
-    V = P[_P_GAIN] * uk - Vs
-    # --- in-amp offset from the first shorted segment (signals.relay_offset)
-    mode = S[_OFF_MODE]
-    if mode == _OFF_WAIT:
-        if not shorted:
-            return _ERR_NO_RELAY, 0.0, 0.0
-        S[_OFF_MODE] = _OFF_COLLECT
-        S[_OFF_SUM] = Vs
-        S[_OFF_N] = 1.0
-    elif mode == _OFF_COLLECT:
-        if shorted:
-            S[_OFF_SUM] += Vs
-            S[_OFF_N] += 1.0
-        else:
-            S[_OFF] = S[_OFF_SUM] / S[_OFF_N]
-            S[_OFF_MODE] = _OFF_FIXED
-    # --- charge, eq. (57): trapezoid, cumulative sum minus its value at the last reset (signals.charge_from_shunt)
-    st, q, csum, base, t_last = _charge(S[_CSUM], S[_BASE], S[_T_LAST], S[_VS_LAST], S[_NSEEN], S[_OFF], P[_P_R],
-                                        Vs, shorted, tk, dt, use_t)
-    if st != _OK:
-        return st, 0.0, 0.0
-    S[_CSUM] = csum
-    S[_BASE] = base
-    S[_T_LAST] = t_last
-    S[_VS_LAST] = Vs
-    S[_NSEEN] += 1.0
-    # --- H(q), eq. (42): fast-math operator step (vectorised sums), as hysteresis._kernels.gamma_kernel
-    g = _gamma_step(P, S, q, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c)
-    # gauge of SelfSensingEstimator (GaugedH): H(Q) = sign * (G[Q] - c Q); sign = 1, c = 0 for a bare operator
-    VH = P[_P_HSIGN] * (g - P[_P_HC] * q)
-    # --- eq. (27) and eq. (52): the kernels of selfsense.sensing.core, as the batch estimator evaluates them
-    Vp = _piezo_voltage(V, VH)
-    if shorted:
-        dxr = 0.0
-        fr = 0.0
-    else:
-        dxr = _tip_linear(q, Vp, P[_P_A1], P[_P_A2], P[_P_DX0])
-        fr = _tip_linear(q, Vp, P[_P_B21], P[_P_B22], 0.0)
-    # --- sliding DC offset (Fig. 24) and limiting (sec. 5.2)
-    dx = dxr
-    f = fr
-    zero = abs(uk) <= P[_P_ZL]
-    if P[_P_DCDX] != 0.0:
-        if zero:
-            S[_DX_DC] = dxr
-        dx = dxr - S[_DX_DC]
-    if P[_P_DCF] != 0.0:
-        if zero:
-            S[_F_DC] = fr
-        f = fr - S[_F_DC]
-    if P[_P_LIMIT] != 0.0:
-        dx = min(max(dx, P[_P_DXLO]), P[_P_DXHI])
-        f = min(max(f, P[_P_FLO]), P[_P_FHI])
-    if aux.shape[0] > 0:
-        aux[k, 0] = q
-        aux[k, 1] = V
-        aux[k, 2] = VH
-        aux[k, 3] = Vp
-        aux[k, 4] = dxr
-        aux[k, 5] = fr
-    return _OK, dx, f
-
-
-@njit(cache=True, fastmath=_FM_STREAM)
-def stream_block_kernel(P, S, t, u, v, relay, dt, use_t, dx_out, f_out, aux):
-    """Fused block loop: integrate, H(q), coefficients, post-processing. Returns (status, index of first bad sample).
-
-    P packed parameters, S packed state (updated in place). ``t`` is ignored unless ``use_t``; ``aux`` (N, 6) or
-    (0, 6) receives q, V, V_H, V_p, dx_raw, f_raw.
-    """
-    rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c = _views(P, S)
+@njit(cache=True)
+def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out):
+    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57) and the leakage member. Returns (status,
+    index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak]; ``S`` the front state
+    (updated in place); ``t`` ignored unless ``use_t``. Writes the charge the model uses (``q_out``, after the
+    leakage member), the measured charge (``qm_out``) and V."""
     for k in range(u.shape[0]):
+        rk = relay[k]
+        if rk != 0.0 and rk != 1.0:
+            return _ERR_RELAY_VALUE, k
+        shorted = rk == 1.0
+        Vs = v[k] / P[_F_INAMP]
+        V = P[_F_GAIN] * u[k] - Vs
+        # in-amp offset from the first shorted segment (signals.relay_offset)
+        mode = S[_OFF_MODE]
+        if mode == _OFF_WAIT:
+            if not shorted:
+                return _ERR_NO_RELAY, k
+            S[_OFF_MODE] = _OFF_COLLECT
+            S[_OFF_SUM] = Vs
+            S[_OFF_N] = 1.0
+        elif mode == _OFF_COLLECT:
+            if shorted:
+                S[_OFF_SUM] += Vs
+                S[_OFF_N] += 1.0
+            else:
+                S[_OFF] = S[_OFF_SUM] / S[_OFF_N]
+                S[_OFF_MODE] = _OFF_FIXED
         tk = t[k] if use_t else 0.0
-        st, dx, f = _one(P, S, tk, u[k], v[k], relay[k], dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c,
-                         aux, k)
+        st, q, csum, base, t_last = _charge(S[_CSUM], S[_BASE], S[_T_LAST], S[_VS_LAST], S[_NSEEN], S[_OFF],
+                                            P[_F_R], Vs, shorted, tk, dt, use_t)
         if st != _OK:
             return st, k
-        dx_out[k] = dx
-        f_out[k] = f
+        qm_out[k] = q
+        g = P[_F_G]
+        if g != 0.0:
+            # leakage member: Q - g int V dt, the same trapezoid on V (R = 1, no offset: integral_v)
+            st, iv, icsum, ibase, _t = _charge(S[_ICSUM], S[_IBASE], S[_T_LAST], S[_V_LAST], S[_NSEEN], 0.0, 1.0,
+                                               V, shorted, tk, dt, use_t)
+            S[_ICSUM] = icsum
+            S[_IBASE] = ibase
+            q = q - g * iv
+        S[_CSUM] = csum
+        S[_BASE] = base
+        S[_T_LAST] = t_last
+        S[_VS_LAST] = Vs
+        S[_V_LAST] = V
+        S[_NSEEN] += 1.0
+        q_out[k] = q
+        V_out[k] = V
     return _OK, u.shape[0]
 
 
-@njit(cache=True, fastmath=_FM_STREAM)
-def stream_step_kernel(P, S, tk, uk, vk, rk, dt, use_t):
-    """One sample (same code as the block loop). Returns (status, dx_hat, f_hat)."""
-    rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c = _views(P, S)
-    aux = np.empty((0, 6))
-    return _one(P, S, tk, uk, vk, rk, dt, use_t, rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c, aux, 0)
-
-
-@njit(cache=True, fastmath=_FM)
-def fused_gamma_kernel(x, P, S, out):
-    """Modified PI operator alone (eq. 42) on the packed layout; same recursion as ``_kernels.gamma_kernel``.
-
-    Kept for the benchmark (operator throughput of the fused streaming layout vs the hysteresis package kernel).
-    """
-    rH, wH, rC, wC, gC, rSp, wSp, rSn, wSn, p, c = _views(P, S)
-    xl = S[_X_LAST]
-    have = not np.isnan(xl)
-    nH = rH.shape[0]
-    nC = rC.shape[0]
-    for k in range(x.shape[0]):
-        xk = x[k]
-        u = P[_P_B]
-        for i in range(nH):
-            zi = max(xk - rH[i], min(xk + rH[i], p[i]))
-            p[i] = zi
-            u += wH[i] * zi
-        if have:
-            for j in range(nC):
-                cj = c[j]
-                tt = max(xl - rC[j], min(xl + rC[j], cj))
-                cj = cj + gC[j] * (tt - cj)
-                c[j] = cj
-                u += wC[j] * cj
+@njit(cache=True)
+def back_kernel(P, S, u, relay, q, V, VH, dx_out, f_out, aux):
+    """Link 3 on a block: eq. (27), eq. (52) with the rest offset, sliding DC offset (Fig. 24), limiting (sec. 5.2).
+    ``aux`` (N, 4) or (0, 4) receives V_p, dx_raw, f_raw, V - V_p."""
+    for k in range(u.shape[0]):
+        shorted = relay[k] == 1.0
+        Vp = _piezo_voltage(V[k], VH[k])
+        if shorted:
+            dxr = 0.0
+            fr = 0.0
         else:
-            for j in range(nC):
-                u += wC[j] * c[j]
-            have = True
-        xl = xk
-        y = P[_P_W0] * u
-        for i in range(rSp.shape[0]):
-            y += wSp[i] * max(u - rSp[i], 0.0)
-        for i in range(rSn.shape[0]):
-            y += wSn[i] * min(u - rSn[i], 0.0)
-        out[k] = y
-    S[_X_LAST] = xl
+            dxr = _tip_linear(q[k], Vp, P[_B_A1], P[_B_A2], P[_B_DX0])
+            fr = _tip_linear(q[k], Vp, P[_B_B21], P[_B_B22], 0.0)
+        dx = dxr
+        f = fr
+        zero = abs(u[k]) <= P[_B_ZL]
+        if P[_B_DCDX] != 0.0:
+            if zero:
+                S[_DX_DC] = dxr
+            dx = dxr - S[_DX_DC]
+        if P[_B_DCF] != 0.0:
+            if zero:
+                S[_F_DC] = fr
+            f = fr - S[_F_DC]
+        if P[_B_LIMIT] != 0.0:
+            dx = min(max(dx, P[_B_DXLO]), P[_B_DXHI])
+            f = min(max(f, P[_B_FLO]), P[_B_FHI])
+        dx_out[k] = dx
+        f_out[k] = f
+        if aux.shape[0] > 0:
+            aux[k, 0] = Vp
+            aux[k, 1] = dxr
+            aux[k, 2] = fr
+            aux[k, 3] = V[k] - Vp
+    return _OK
+
+
+def _creep_advance(Q, r_K, a_K, dt, state):
+    """Kuhnen's creep operators (eq. 39, ``operators.creep_operator``) continued from ``state`` = {"c": (n, m)
+    states at the last sample, "x": last input or None}; returns (N, n, m) like ``creep_operator``."""
+    from selfsense.hysteresis import _kernels
+
+    g = -np.expm1(-np.asarray(a_K, float) * dt)
+    c = state["c"]
+    if state["x"] is None:
+        out = np.empty((len(Q), len(r_K), len(a_K)))
+        _kernels.creep_kernel(np.ascontiguousarray(Q, dtype=float), np.asarray(r_K, float), g, c, out)
+    else:   # sample 0 of the block is the update from the previous block's last input
+        xx = np.ascontiguousarray(np.concatenate([[state["x"]], Q]), dtype=float)
+        out = np.empty((len(xx), len(r_K), len(a_K)))
+        _kernels.creep_kernel(xx, np.asarray(r_K, float), g, c, out)
+        out = out[1:]
+    if len(Q):
+        state["x"] = float(Q[-1])
+    return out
+
+
+def stream_kinds() -> tuple[str, ...]:
+    """The H models the stream evaluates: every registry kind and the thesis identification's types."""
+    from selfsense.hysteresis.models import REGISTRY
+
+    return tuple(sorted(REGISTRY)) + ("GaugedH", "RICreepH", "RIModel")
+
+
+class HStream:
+    """H(Q) [V] of any model the estimator holds, block after block with its memory carried (link 2).
+
+    ``HStream(model, dt)``: ``dt`` [s] the sample time at which creep eigenvalues (1/s) are discretised, as the
+    batch ``selfsense.sensing.estimator._eval_h(model, Q, dt)``; ``process(Q)`` -> H on the block; ``reset()``,
+    ``get_state()`` / ``set_state()`` (deep copies)."""
+
+    def __init__(self, model, dt: float | None):
+        self.model = model
+        name = type(model).__name__
+        if hasattr(model, "predict") and hasattr(model, "kind"):
+            self.kind = model.kind
+            self.dt = float(model.dt_ if dt is None else dt)
+        elif name == "GaugedH":
+            self.kind = "GaugedH"
+            inner = model.inner
+            if type(inner).__name__ == "ModifiedPI":
+                self.dt = float(inner.dt if dt is None else dt)
+                self._inner = inner.with_dt(self.dt) if self.dt != inner.dt else inner
+            elif type(inner).__name__ == "RIModel":
+                self.dt = float("nan") if dt is None else float(dt)
+                self._inner = inner
+            else:
+                raise NotImplementedError(f"HStream: GaugedH around {type(inner).__name__} cannot stream")
+        elif name in ("RICreepH", "RIModel"):
+            self.kind = name
+            self.dt = float(getattr(model, "dt", float("nan")))   # evaluated at its own sample time, as in batch
+        else:
+            raise NotImplementedError(f"HStream: H model {name!r} cannot stream; expected one of {stream_kinds()}")
+        if self.kind in ("GaugedH", "RICreepH", "RIModel") or self.kind == "modified_pi":
+            pass
+        elif not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"HStream: sample time dt must be > 0 s, got {self.dt!r}")
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the relaxed state (the relay's known initial state, thesis sec. 5.1.1)."""
+        m = self.model
+        if self.kind in ("GaugedH", "RIModel"):
+            self._state = {"op": None}
+        elif self.kind == "RICreepH":
+            self._state = {"ri": None, "creep": {"c": np.zeros((len(m.r_K), len(m.a_K))), "x": None}}
+        else:
+            self._state = m.initial_state()
+
+    def get_state(self):
+        return copy.deepcopy(self._state)
+
+    def set_state(self, state) -> None:
+        self._state = copy.deepcopy(state)
+
+    def process(self, Q) -> np.ndarray:
+        Q = np.ascontiguousarray(Q, dtype=float)
+        m, st = self.model, self._state
+        if self.kind == "GaugedH":
+            if type(self._inner).__name__ == "RIModel":
+                g, st["op"] = self._inner.apply(np.maximum(Q, 0.0), st["op"])
+            else:
+                g, st["op"] = self._inner.apply(Q, st["op"])
+            return m.sign * (np.asarray(g, dtype=float) - m.c * Q)
+        if self.kind == "RIModel":
+            y, st["op"] = m.apply(np.maximum(Q, 0.0), st["op"])
+            return np.asarray(y, dtype=float)
+        if self.kind == "RICreepH":
+            y, st["ri"] = m.ri.apply(np.maximum(Q, 0.0), st["ri"])
+            if m.w_K.size:
+                K = _creep_advance(Q, m.r_K, m.a_K, m.dt, st["creep"])
+                y = y + np.einsum("knm,nm->k", K, m.w_K)
+            return y + m.c * Q
+        return np.asarray(m.predict(Q, self.dt, st), dtype=float)
 
 
 def _rig_value(rig: Any, key: str) -> float:
     return float(rig[key] if isinstance(rig, Mapping) else getattr(rig, key))
 
 
-def pack_operator(model) -> tuple[np.ndarray, np.ndarray]:
-    """Packed (parameters, initial state) of a ``ModifiedPI`` for :func:`fused_gamma_kernel` (no sensing part)."""
-    P, S = _pack(model, {})
-    return P, S
-
-
-def _pack(model, sc: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    m = model
-    n, mm = len(m.r_K), len(m.a_K)
-    rC = np.repeat(m.r_K, mm)
-    wC = np.repeat(m.w_K, mm)
-    gC = np.tile(-np.expm1(-m.a_K * m.dt), n)  # 1 - exp(-a T_s), as ModifiedPI._prepare
-    r, w = m.r_S, m.w_S
-    s0 = float(w[r == 0].sum())
-    pos, neg = r > 0, r < 0
-    head = np.zeros(_NP_FIXED)
-    for key, idx in (("R", _P_R), ("inamp", _P_INAMP), ("gain", _P_GAIN), ("A1", _P_A1), ("A2", _P_A2),
-                     ("B21", _P_B21), ("B22", _P_B22), ("zl", _P_ZL), ("dxlo", _P_DXLO), ("dxhi", _P_DXHI),
-                     ("flo", _P_FLO), ("fhi", _P_FHI), ("dcdx", _P_DCDX), ("dcf", _P_DCF), ("limit", _P_LIMIT),
-                     ("hsign", _P_HSIGN), ("hc", _P_HC), ("dx0", _P_DX0)):
-        head[idx] = float(sc.get(key, 1.0 if key in ("R", "inamp", "hsign") else 0.0))
-    head[_P_B] = m.offset
-    head[_P_W0] = s0
-    head[_P_NH], head[_P_NC], head[_P_NP], head[_P_NN] = len(m.r_H), len(rC), int(pos.sum()), int(neg.sum())
-    P = np.ascontiguousarray(np.concatenate([head, m.r_H, m.w_H, rC, wC, gC, r[pos], w[pos], r[neg], w[neg]]))
-    S = np.zeros(_NS_FIXED + len(m.r_H) + len(rC))
-    S[_X_LAST] = np.nan
-    S[_NS_FIXED:_NS_FIXED + len(m.r_H)] = m.z_H0
-    S[_NS_FIXED + len(m.r_H):] = m.Z_K0.reshape(-1)
-    return P, S
-
-
-_AUX_NAMES = ("q", "V", "V_H", "V_p", "dx_raw", "f_raw")
-
-
 class SelfSensingStream:
-    """Streaming twin of ``stages.ingest`` + ``SelfSensingEstimator.estimate`` on raw DAQ samples.
+    """Streaming twin of ``stages.ingest`` + ``SelfSensingEstimator.estimate`` on raw DAQ samples, for every model
+    the estimator can hold (see the module docstring).
 
     Parameters
     ----------
-    estimator : a fitted ``SelfSensingEstimator`` (``h_model='modified_pi'``, thesis identification, no drift compensation).
+    estimator : a fitted ``SelfSensingEstimator`` (any H model; leakage, rest offset, sliding offset, limiting;
+        not the offset-drift member, which is fitted over whole trials).
     rig : ``selfsense.io.Rig`` or rig.yaml mapping (default ``estimator.rig``): needs ``shunt_resistance_ohm``,
         ``inamp_gain``, ``amplifier_gain``.
-    dt : sample period [s] used when samples come without time stamps (``t=None``).
+    dt : sample period [s], used when samples come without time stamps (``t=None``) and for H's creep terms
+        (default: the calibration's sample time).
     offset : ``"relay"`` (default): in-amp offset = mean ``V_s`` of the first shorted segment, which must open
         the stream (as ``charge_from_shunt(offset="relay")``); or a number [V] (``V_s`` units, i.e. after the
         in-amp gain) to subtract from the first sample on.
 
     ``step(u_cmd, v_shunt, relay=0, t=None) -> (dx_hat [m], f_hat [N])``;
     ``process(u_cmd, v_shunt, relay=None, t=None) -> (dx_hat, f_hat)`` arrays (``full=True``: a dict that also
-    holds q, V, V_H, V_p, dx_raw, f_raw). Feeding any split of a log gives the same result as one call.
+    holds q, V, V_H, V_p, dx_raw, f_raw). Feeding any split of a log gives the same result as one call, and a
+    sample fed by ``step`` goes through the same code as a block.
     """
 
     def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay"):
@@ -350,19 +315,16 @@ class SelfSensingStream:
 
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
-        h = estimator.hysteresis_
-        h_sign, h_c = 1.0, 0.0
-        if type(h).__name__ == "GaugedH":  # H(Q) = sign * (G[Q] - c Q), selfsense.sensing.estimator.GaugedH
-            h, h_sign, h_c = h.inner, float(h.sign), float(h.c)
-        if type(h).__name__ != "ModifiedPI":
+        if getattr(estimator, "offset_drift_", False):
             raise NotImplementedError(
-                f"SelfSensingStream supports h_model='modified_pi' only, got {type(h).__name__}")
+                "SelfSensingStream: the model carries the offset-drift member (offset_drift: true), a charge drift "
+                "fitted over the rest segments of the whole trial, which a stream has not seen yet; refit with "
+                "calibration: drift: off to stream this device")
         rig = estimator.rig if rig is None else rig
         if rig is None:
             raise ValueError("SelfSensingStream needs the rig (shunt resistance, gains)")
         cfg = estimator.config
         c = estimator.coef_
-        gain = _rig_value(rig, "amplifier_gain")
         self.estimator = estimator
         self.rig = rig
         self.dt = None if dt is None else float(dt)
@@ -371,22 +333,23 @@ class SelfSensingStream:
         if isinstance(offset, str) and offset != "relay":
             raise ValueError(f"offset must be 'relay' or a number [V], got {offset!r}")
         self.offset_arg = offset
-        sc = {
-            "R": _rig_value(rig, "shunt_resistance_ohm"), "inamp": _rig_value(rig, "inamp_gain"), "gain": gain,
-            "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "dx0": float(c.get("dx0", 0.0)),
-            # exactly the expression of SelfSensingEstimator.estimate
-            "zl": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
-            "dxlo": estimator.ranges_["dx"][0], "dxhi": estimator.ranges_["dx"][1],
-            "flo": estimator.ranges_["f"][0], "fhi": estimator.ranges_["f"][1],
-            "dcdx": float(bool(cfg.dc_offset)), "dcf": float(bool(cfg.dc_offset_force)), "limit": float(bool(cfg.limit)),
-            "hsign": h_sign, "hc": h_c,
-        }
-        if sc["R"] <= 0 or sc["inamp"] <= 0:
+        R, inamp, gain = (_rig_value(rig, "shunt_resistance_ohm"), _rig_value(rig, "inamp_gain"),
+                          _rig_value(rig, "amplifier_gain"))
+        if R <= 0 or inamp <= 0:
             raise ValueError("rig: shunt_resistance_ohm and inamp_gain must be > 0")
-        self._P, self._S0 = _pack(h, sc)
+        g = float(getattr(estimator, "leakage_s_", 0.0) or 0.0)
+        self._PF = np.array([R, inamp, gain, g])
+        self._PB = np.array([
+            c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
+            # exactly the expression of SelfSensingEstimator.estimate
+            cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
+            estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
+            float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit))], dtype=float)
+        self.h = HStream(estimator.hysteresis_, self.dt)
+        self._SF0 = np.zeros(_NS_FRONT)
         if not isinstance(offset, str):
-            self._S0[_OFF_MODE] = _OFF_FIXED
-            self._S0[_OFF] = float(offset)
+            self._SF0[_OFF_MODE] = _OFF_FIXED
+            self._SF0[_OFF] = float(offset)
         self.reset()
 
     # ------------------------------------------------------------------ construction helpers
@@ -399,38 +362,52 @@ class SelfSensingStream:
 
     @classmethod
     def from_json(cls, path: str | Path, rig_or_dataset: Any, **kw) -> "SelfSensingStream":
-        """From a model JSON file and a rig (``Rig``, mapping, or a dataset directory holding rig.yaml)."""
+        """From a model JSON file and a rig (``Rig``, mapping, or a dataset directory holding rig.yaml). A file
+        that is not a fitted model (wrong kind, missing keys, wrong shapes) raises ``ValueError`` naming it."""
         rig = rig_or_dataset
         if isinstance(rig, (str, Path)):
             from selfsense import io as sio
 
             rig = sio.load_rig(rig)
-        return cls.from_dict(json.loads(Path(path).read_text()), rig, **kw)
+        try:
+            d = json.loads(Path(path).read_text())
+            return cls.from_dict(d, rig, **kw)
+        except NotImplementedError as e:
+            raise NotImplementedError(f"{path}: {e}") from None
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+            what = f"missing key {e}" if isinstance(e, KeyError) else str(e)
+            raise ValueError(f"{path}: not a model the stream can run ({what})") from None
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Back to the initial state (no samples seen, operator at its initial states)."""
-        self._S = self._S0.copy()
+        """Back to the initial state (no samples seen, operators at their relaxed states)."""
+        self._SF = self._SF0.copy()
+        self._SB = np.zeros(2)
+        self.h.reset()
 
-    def get_state(self) -> np.ndarray:
-        """Copy of the packed state vector (restore with :meth:`set_state`)."""
-        return self._S.copy()
+    def get_state(self) -> dict:
+        """Copy of the whole state (restore with :meth:`set_state`)."""
+        return {"front": self._SF.copy(), "back": self._SB.copy(), "h": self.h.get_state()}
 
-    def set_state(self, state: np.ndarray) -> None:
-        s = np.asarray(state, dtype=np.float64)
-        if s.shape != self._S0.shape:
-            raise ValueError(f"state must have shape {self._S0.shape}, got {s.shape}")
-        self._S = s.copy()
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        if not isinstance(state, Mapping) or set(state) != {"front", "back", "h"}:
+            raise ValueError("state must be a dict from get_state() with keys front, back, h")
+        f = np.asarray(state["front"], dtype=np.float64)
+        b = np.asarray(state["back"], dtype=np.float64)
+        if f.shape != self._SF0.shape or b.shape != (2,):
+            raise ValueError(f"state: front must have shape {self._SF0.shape} and back (2,), got {f.shape}, {b.shape}")
+        self._SF, self._SB = f.copy(), b.copy()
+        self.h.set_state(state["h"])
 
     @property
     def n_samples(self) -> int:
         """Samples processed since the last reset."""
-        return int(self._S[_NSEEN])
+        return int(self._SF[_NSEEN])
 
     @property
     def offset_v(self) -> float:
         """The in-amp offset subtracted from V_s [V] (NaN while still being estimated on the relay segment)."""
-        return float(self._S[_OFF]) if self._S[_OFF_MODE] == _OFF_FIXED else float("nan")
+        return float(self._SF[_OFF]) if self._SF[_OFF_MODE] == _OFF_FIXED else float("nan")
 
     # ------------------------------------------------------------------ processing
     def _raise(self, status: int, where: str) -> None:
@@ -446,21 +423,17 @@ class SelfSensingStream:
     def step(self, u_cmd: float, v_shunt: float, relay: float = 0.0, t: float | None = None):
         """One raw sample: control voltage u_cmd [V], in-amp output v_shunt [V], relay 0/1, time t [s]
         (or the constructor's dt). Returns (dx_hat [m], f_hat [N])."""
-        if t is None:
-            if self.dt is None:
-                raise ValueError("step: pass t or construct the stream with dt")
-            st, dx, f = stream_step_kernel(self._P, self._S, 0.0, float(u_cmd), float(v_shunt), float(relay),
-                                           self.dt, False)
-        else:
-            st, dx, f = stream_step_kernel(self._P, self._S, float(t), float(u_cmd), float(v_shunt), float(relay),
-                                           0.0, True)
-        if st:
-            self._raise(st, f"sample {self.n_samples}")
-        return dx, f
+        if t is None and self.dt is None:
+            raise ValueError("step: pass t or construct the stream with dt")
+        dx, f = self.process(np.array([float(u_cmd)]), np.array([float(v_shunt)]), np.array([float(relay)]),
+                             None if t is None else np.array([float(t)]))
+        return float(dx[0]), float(f[0])
 
     def process(self, u_cmd, v_shunt, relay=None, t=None, *, full: bool = False):
         """A block of raw samples (1-D arrays of equal length; relay default 0). Returns (dx_hat, f_hat) arrays,
-        or with ``full=True`` a dict with dx_hat, f_hat, q, V, V_H, V_p, dx_raw, f_raw."""
+        or with ``full=True`` a dict with dx_hat, f_hat, q (measured charge), q_model (after the leakage member),
+        V, V_H, V_p, dx_raw, f_raw. A block with a bad sample
+        raises :class:`StreamError` and leaves the state as it was before the block."""
         u = np.ascontiguousarray(u_cmd, dtype=np.float64).ravel()
         v = np.ascontiguousarray(v_shunt, dtype=np.float64).ravel()
         n = u.shape[0]
@@ -476,17 +449,20 @@ class SelfSensingStream:
             if tt.shape[0] != n:
                 raise ValueError(f"t must have length {n}, got {tt.shape[0]}")
             use_t, dt = True, 0.0
-        dx = np.empty(n)
-        f = np.empty(n)
-        aux = np.empty((n, 6)) if full else np.empty((0, 6))
-        S = self._S.copy()  # commit the state only if the whole block is valid
-        st, k = stream_block_kernel(self._P, S, tt, u, v, r, dt, use_t, dx, f, aux)
+        q = np.empty(n)
+        qm = np.empty(n)
+        V = np.empty(n)
+        SF = self._SF.copy()  # commit the state only if the whole block is valid
+        st, k = front_kernel(self._PF, SF, tt, u, v, r, dt, use_t, q, V, qm)
         if st:
             self._raise(int(st), f"sample {self.n_samples + int(k)} (block index {int(k)})")
-        self._S = S
+        VH = self.h.process(q)
+        dx = np.empty(n)
+        f = np.empty(n)
+        aux = np.empty((n, 4)) if full else np.empty((0, 4))
+        back_kernel(self._PB, self._SB, u, r, q, V, VH, dx, f, aux)
+        self._SF = SF
         if not full:
             return dx, f
-        out = {"dx_hat": dx, "f_hat": f}
-        for j, name in enumerate(_AUX_NAMES):
-            out[name] = aux[:, j].copy()
-        return out
+        return {"dx_hat": dx, "f_hat": f, "q": qm, "q_model": q, "V": V, "V_H": aux[:, 3].copy(), "V_p": aux[:, 0].copy(),
+                "dx_raw": aux[:, 1].copy(), "f_raw": aux[:, 2].copy()}

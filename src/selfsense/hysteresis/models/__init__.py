@@ -6,9 +6,11 @@ Every model (scikit-learn style; ``docs/hysteresis.md``):
 * ``fit(q, v, dt, extra=None)`` on one trial (arrays) or several (lists of arrays, each from the relaxed state that
   the charge circuit's relay establishes, thesis 000_18d138f03f1777c3.txt sec. 5.1.1); ``dt`` [s] is the sample
   time of the data, stored as ``dt_``;
-* ``predict(q, dt=None)`` -> H [V] from the relaxed state, at the sample time ``dt`` (default ``dt_``): creep
-  eigenvalues live in 1/s and are discretised at the evaluation sample time;
-  ``model(q)`` is ``predict(q)``;
+* ``predict(q, dt=None, state=None)`` -> H [V] from the relaxed state, at the sample time ``dt`` (default ``dt_``):
+  creep eigenvalues live in 1/s and are discretised at the evaluation sample time; ``model(q)`` is ``predict(q)``;
+* streaming: ``state = model.initial_state()`` (the relaxed state), then ``predict(block, dt, state)`` block after
+  block carries the operators' memory in ``state`` (updated in place), and the blocks' outputs concatenated are
+  exactly ``predict(whole_record, dt)``: batch evaluation is the stream fed one block (one code path);
 * ``to_dict()`` / ``from_dict(d)`` (plain JSON) and fitted attributes ending in ``_``.
 
 The models linear in their parameters (``linear``, ``pi``, ``preisach``, ``ri``) share :class:`LinearParamH`:
@@ -27,7 +29,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ._grid import play_features, play_output, preisach_grid_features, preisach_grid_output, relaxation_bank, relaxation_output
+from ._grid import (grid_state, play_features, play_output, preisach_grid_features, preisach_grid_output, relaxation_bank,
+                    relaxation_output)
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
            "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError"]
@@ -164,24 +167,37 @@ class LinearParamH:
                             "n_parameters": int(X.shape[1]), "solver": "pivoted-QR least squares (ridge)"}
         return self
 
-    def predict(self, q, dt: float | None = None) -> np.ndarray:
-        """H [V] from the relaxed state, at sample time ``dt`` [s] (default ``dt_``). Computed term by term without
-        building the design matrix: memory O(len(q)), whatever the number of basis functions."""
+    def initial_state(self) -> dict:
+        """The relaxed state (streaming, see the module docstring): the hysteretic basis' memory and the creep
+        filters' states."""
+        n = len(self.creep_tau_s) if self.creep and self.creep_tau_s else 0
+        return {"basis": self._basis_state(), "creep": np.zeros(n)}
+
+    def _basis_state(self):
+        return None
+
+    def predict(self, q, dt: float | None = None, state: dict | None = None) -> np.ndarray:
+        """H [V] from the relaxed state, or from ``state`` (:meth:`initial_state`, updated in place), at sample
+        time ``dt`` [s] (default ``dt_``). Computed term by term without building the design matrix: memory
+        O(len(q)), whatever the number of basis functions."""
         if self.coef_ is None:
             raise RuntimeError(f"{type(self).__name__}.predict called before fit()")
         dt = self.dt_ if dt is None else float(dt)
+        st = self.initial_state() if state is None else state
         u = self._u(q)
         c = self.coef_
         nb = len(c) - 2 - (len(self.creep_tau_s) if self.creep and self.creep_tau_s else 0)
-        y = self._basis_dot(u, c[:nb]) + c[nb] * u
+        y = self._basis_dot(u, c[:nb], st["basis"]) + c[nb] * u
         if self.creep and self.creep_tau_s:
-            y = y + relaxation_output(u, dt, self.creep_tau_s, c[nb + 1:nb + 1 + len(self.creep_tau_s)])
+            y = y + relaxation_output(u, dt, self.creep_tau_s, c[nb + 1:nb + 1 + len(self.creep_tau_s)], st["creep"])
         return y + c[-1]
 
-    def _basis_dot(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """``basis(u) @ w``; subclasses compute it without the full basis."""
-        B = self._basis(u)
-        return B @ w if B.shape[1] else np.zeros(u.size)
+    def _basis_dot(self, u: np.ndarray, w: np.ndarray, state=None) -> np.ndarray:
+        """``basis(u) @ w`` from the basis memory ``state`` (:meth:`_basis_state`, updated in place); subclasses
+        compute it without the full basis. The base class has no hysteretic basis."""
+        if len(w):
+            raise NotImplementedError(f"{type(self).__name__}: a hysteretic basis needs its own _basis_dot")
+        return np.zeros(u.size)
 
     def __call__(self, q) -> np.ndarray:
         return self.predict(q)
@@ -208,7 +224,17 @@ class LinearParamH:
         m.coef_ = None if d.get("coef") is None else np.asarray(d["coef"], dtype=float)
         m.extra_coef_ = np.asarray(d.get("extra_coef", []), dtype=float)
         m._load_fitted(d.get("fitted", {}))
+        if m.coef_ is not None:
+            n_creep = len(m.creep_tau_s) if m.creep and m.creep_tau_s else 0
+            want = m._n_basis() + 1 + n_creep + 1
+            if m.coef_.shape != (want,) or not np.all(np.isfinite(m.coef_)):
+                raise ValueError(f"H model {m.kind}: coef must hold {want} finite values ({m._n_basis()} basis, 1 linear, "
+                                 f"{n_creep} creep, 1 offset), found shape {m.coef_.shape}")
         return m
+
+    def _n_basis(self) -> int:
+        """Number of hysteretic basis columns (coefficients before the linear term)."""
+        return 0
 
     def label(self) -> str:
         extra = ", ".join(f"{k}={v}" for k, v in self._params().items())
@@ -286,9 +312,15 @@ class PlayH(LinearParamH):
         r = np.arange(1, self.n_play + 1) / self.n_play
         return play_features(np.ascontiguousarray(u, dtype=float), r, int(stride))
 
-    def _basis_dot(self, u, w):
+    def _basis_state(self):
+        return np.zeros(self.n_play)
+
+    def _n_basis(self) -> int:
+        return self.n_play
+
+    def _basis_dot(self, u, w, state=None):
         r = np.arange(1, self.n_play + 1) / self.n_play
-        return play_output(np.ascontiguousarray(u, dtype=float), r, np.ascontiguousarray(w, dtype=float))
+        return play_output(u, r, w, state)
 
 
 class PreisachH(LinearParamH):
@@ -335,13 +367,20 @@ class PreisachH(LinearParamH):
             F = np.column_stack([F, play_features(u, r, int(stride))])
         return F
 
-    def _basis_dot(self, u, w):
+    def _basis_state(self):
+        return {"grid": grid_state(), "play": np.zeros(self.n_play)}
+
+    def _n_basis(self) -> int:
+        return self.n_grid * (self.n_grid + 1) // 2 + self.n_play
+
+    def _basis_dot(self, u, w, state=None):
+        st = self._basis_state() if state is None else state
         u = np.ascontiguousarray(u, dtype=float)
         nc = self.n_grid * (self.n_grid + 1) // 2
-        y = preisach_grid_output(u, 0.0, 1.0, self.n_grid, np.ascontiguousarray(w[:nc], dtype=float))
+        y = preisach_grid_output(u, 0.0, 1.0, self.n_grid, w[:nc], st["grid"])
         if self.n_play:
             r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
-            y = y + play_output(u, r, np.ascontiguousarray(w[nc:], dtype=float))
+            y = y + play_output(u, r, w[nc:], st["play"])
         return y
 
 
@@ -361,11 +400,22 @@ class RIH(LinearParamH):
         Phi = ri.regressor(np.maximum(u, 0.0))[::stride]   # 20 columns at full rate, then thinned
         return np.column_stack([Phi[:, :5], Phi[:, 5:] @ diagonal_constraint_basis()])
 
-    def _basis_dot(self, u, w):
+    def _basis_state(self):
+        return {"ri": None}   # the RIState of the extrema memory (None: virgin)
+
+    def _n_basis(self) -> int:
+        from selfsense.hysteresis.ri import diagonal_constraint_basis
+
+        return 5 + diagonal_constraint_basis().shape[1]
+
+    def _basis_dot(self, u, w, state=None):
         from selfsense.hysteresis.ri import RIModel, diagonal_constraint_basis
 
         ri = RIModel(b=w[:5], p=diagonal_constraint_basis() @ w[5:], input_scale=1.0)
-        return np.asarray(ri(np.maximum(u, 0.0)), dtype=float)
+        y, after = ri.apply(np.maximum(u, 0.0), None if state is None else state["ri"])
+        if state is not None:
+            state["ri"] = after
+        return np.asarray(y, dtype=float)
 
 
 class ModifiedPIH:
@@ -430,14 +480,24 @@ class ModifiedPIH:
                                  "gauge_c": self.c_, "n_creep": int(n_creep), "n_samples": int(len(y))})
         return self
 
-    def predict(self, q, dt: float | None = None) -> np.ndarray:
+    def initial_state(self) -> dict:
+        """The operator's initial state (streaming: see the module docstring)."""
+        return {"pi": None, "inner": None}
+
+    def predict(self, q, dt: float | None = None, state: dict | None = None) -> np.ndarray:
         if self.inner_ is None:
             raise RuntimeError("ModifiedPIH.predict called before fit()")
         q = np.asarray(q, dtype=float)
         inner = self.inner_
         if dt is not None and float(dt) != inner.dt:
-            inner = inner.with_dt(float(dt))
-        return self.sign_ * (np.asarray(inner(q), dtype=float) - self.c_ * q)
+            if state is not None and state["inner"] is not None and state["inner"].dt == float(dt):
+                inner = state["inner"]   # discretised once per stream
+            else:
+                inner = inner.with_dt(float(dt))
+        g, after = inner.apply(q, None if state is None else state["pi"])
+        if state is not None:
+            state["pi"], state["inner"] = after, inner
+        return self.sign_ * (np.asarray(g, dtype=float) - self.c_ * q)
 
     def __call__(self, q) -> np.ndarray:
         return self.predict(q)

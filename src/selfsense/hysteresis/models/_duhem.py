@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["n_terms", "duhem_run", "duhem_terms"]
+__all__ = ["n_terms", "duhem_run", "duhem_state", "duhem_terms"]
 
 _CLIP = 1.5
 
@@ -40,11 +40,21 @@ def duhem_terms(x, w, deg, out, dout_dw):
         xi *= x
 
 
-@njit(cache=True)
-def duhem_run(u, c, deg, v_lo, v_span, eps, v_min, v_max, stride, jac):
-    """Run the map from ``v = 0`` (the relaxed state), ascending first. ``c`` = [ascending | descending] coefficients.
+def duhem_state() -> np.ndarray:
+    """The relaxed state of :func:`duhem_run`: ``[v, direction (+1 ascending), last extremum, previous input,
+    started (0/1)]`` with v = 0, ascending first. Streaming callers keep it between blocks."""
+    return np.array([0.0, 1.0, 0.0, 0.0, 0.0])
 
-    Returns ``V`` (every ``stride``-th sample) and, with ``jac``, ``J = dV / dc`` at the same rows."""
+
+@njit(cache=True)
+def duhem_run(u, c, deg, v_lo, v_span, eps, v_min, v_max, stride, jac, st):
+    """Run the map from the state ``st`` (:func:`duhem_state`: v = 0, ascending first, for the relaxed state),
+    which is updated in place. ``c`` = [ascending | descending] coefficients.
+
+    Each incoming sample u_k first moves the state from the previous input (direction with its dead band, then
+    ``v += g_s(u_{k-1}, v) (u_k - u_{k-1})``), then V_k = v; the first sample ever only starts the map (V_0 = v).
+    Returns ``V`` (every ``stride``-th sample) and, with ``jac``, ``J = dV / dc`` at the same rows (the
+    sensitivities start from zero at the first sample of the call: ``jac`` is for fits from the relaxed state)."""
     n = u.size
     nb = (deg + 1) * (deg + 2) // 2
     p = 2 * nb
@@ -54,55 +64,65 @@ def duhem_run(u, c, deg, v_lo, v_span, eps, v_min, v_max, stride, jac):
     sens = np.zeros(p)
     phi = np.empty(nb)
     dphi = np.empty(nb)
-    val = 0.0
-    s = 1
-    ext = u[0]
+    val = st[0]
+    s = 1 if st[1] > 0 else -1
+    ext = st[2]
+    up = st[3]
+    started = st[4] != 0.0
     for k in range(n):
+        un = u[k]
+        if not started:
+            started = True
+            ext = un
+        else:
+            if s > 0:
+                if un > ext:
+                    ext = un
+                elif ext - un > eps:
+                    s = -1
+                    ext = un
+            else:
+                if un < ext:
+                    ext = un
+                elif un - ext > eps:
+                    s = 1
+                    ext = un
+            du = un - up
+            x = min(max(2.0 * up - 1.0, -_CLIP), _CLIP)
+            wr = 2.0 * (val - v_lo) / v_span - 1.0
+            w = min(max(wr, -_CLIP), _CLIP)
+            duhem_terms(x, w, deg, phi, dphi)
+            off = 0 if s > 0 else nb
+            g = 0.0
+            dg_dw = 0.0
+            for m in range(nb):
+                g += c[off + m] * phi[m]
+                dg_dw += c[off + m] * dphi[m]
+            new = val + g * du
+            clipped = new < v_min or new > v_max
+            if jac:
+                dw_dv = 2.0 / v_span if (wr > -_CLIP and wr < _CLIP) else 0.0
+                a = 1.0 + dg_dw * dw_dv * du
+                if clipped:
+                    for m in range(p):
+                        sens[m] = 0.0
+                else:
+                    for m in range(p):
+                        x_ = sens[m] * a
+                        # flush to zero: a decaying sensitivity would otherwise turn subnormal (slow arithmetic)
+                        sens[m] = x_ if abs(x_) > 1e-150 else 0.0
+                    for m in range(nb):
+                        sens[off + m] += phi[m] * du
+            val = min(max(new, v_min), v_max)
+        up = un
         if k % stride == 0:
             V[k // stride] = val
             if jac:
                 for m in range(p):
                     J[k // stride, m] = sens[m]
-        if k == n - 1:
-            break
-        un = u[k + 1]
-        if s > 0:
-            if un > ext:
-                ext = un
-            elif ext - un > eps:
-                s = -1
-                ext = un
-        else:
-            if un < ext:
-                ext = un
-            elif un - ext > eps:
-                s = 1
-                ext = un
-        du = un - u[k]
-        x = min(max(2.0 * u[k] - 1.0, -_CLIP), _CLIP)
-        wr = 2.0 * (val - v_lo) / v_span - 1.0
-        w = min(max(wr, -_CLIP), _CLIP)
-        duhem_terms(x, w, deg, phi, dphi)
-        off = 0 if s > 0 else nb
-        g = 0.0
-        dg_dw = 0.0
-        for m in range(nb):
-            g += c[off + m] * phi[m]
-            dg_dw += c[off + m] * dphi[m]
-        new = val + g * du
-        clipped = new < v_min or new > v_max
-        if jac:
-            dw_dv = 2.0 / v_span if (wr > -_CLIP and wr < _CLIP) else 0.0
-            a = 1.0 + dg_dw * dw_dv * du
-            if clipped:
-                for m in range(p):
-                    sens[m] = 0.0
-            else:
-                for m in range(p):
-                    x_ = sens[m] * a
-                    # flush to zero: a decaying sensitivity would otherwise turn subnormal (slow arithmetic)
-                    sens[m] = x_ if abs(x_) > 1e-150 else 0.0
-                for m in range(nb):
-                    sens[off + m] += phi[m] * du
-        val = min(max(new, v_min), v_max)
+    st[0] = val
+    st[1] = 1.0 if s > 0 else -1.0
+    st[2] = ext
+    st[3] = up
+    st[4] = 1.0 if started else 0.0
     return V, J

@@ -15,9 +15,18 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["preisach_grid_features", "preisach_grid_output", "relaxation_bank", "relaxation_output"]
+__all__ = ["preisach_grid_features", "preisach_grid_output", "relaxation_bank", "relaxation_output", "GRID_STACK",
+           "grid_state", "play_output"]
 
 _BIG = 1e300
+#: capacity of the Preisach grid's stack of dominant extrema (nested reversals beyond it are dropped, as before)
+GRID_STACK = 4096
+
+
+def grid_state() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The relaxed state of :func:`preisach_grid_output` (all relays down): stacks of dominant maxima / minima and
+    ``[K (stack depth), previous input, started (0/1)]``. Streaming callers keep these arrays between blocks."""
+    return np.empty(GRID_STACK), np.empty(GRID_STACK), np.array([0.0, 0.0, 0.0])
 
 
 @njit(cache=True)
@@ -30,22 +39,32 @@ def _prim(x, b0, top):
     return 0.5 * (top - b0) * (top - b0) + (top - b0) * (x - top)
 
 
-@njit(cache=True)
 def preisach_grid_features(u, lo, hi, n, stride=1):
-    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row."""
-    return _grid(u, lo, hi, n, np.zeros(0), False, stride)
+    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row, from the relaxed state."""
+    Ms, ms, st = grid_state()
+    st[1] = lo
+    return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
+                 int(stride), Ms, ms, st)
+
+
+def preisach_grid_output(u, lo, hi, n, w, state=None):
+    """``F @ w`` of :func:`preisach_grid_features` without storing F: memory O(len(u)), not O(len(u) n^2).
+    ``state`` (from :func:`grid_state`, updated in place): continue from it, so that blocks fed one after the other
+    give exactly the output of one call on the whole input."""
+    if state is None:
+        state = grid_state()
+    Ms, ms, st = state
+    if st[2] == 0.0:
+        st[1] = lo
+    return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
+                 np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st)[:, 0]
 
 
 @njit(cache=True)
-def preisach_grid_output(u, lo, hi, n, w):
-    """``F @ w`` of :func:`preisach_grid_features` without storing F: memory O(len(u)), not O(len(u) n^2)."""
-    return _grid(u, lo, hi, n, w, True, 1)[:, 0]
-
-
-@njit(cache=True)
-def _grid(u, lo, hi, n, w, weighted, stride):
+def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st):
     """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it); with
-    ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample).
+    ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample). The state (stacks
+    ``Ms``, ``ms``; ``st = [K, previous input, started]``) is read at the start and written back at the end.
 
     Cell (i, j), j <= i, covers a in [g_i, g_i+1], b in [g_j, g_j+1] (half of it when i == j); its feature is the
     up-fraction of its area, in [0, 1]."""
@@ -53,17 +72,18 @@ def _grid(u, lo, hi, n, w, weighted, stride):
     nc = n * (n + 1) // 2
     F = np.zeros((N, 1)) if weighted else np.zeros(((N + stride - 1) // stride, nc))
     h = (hi - lo) / n
-    Ms = np.empty(4096)
-    ms = np.empty(4096)
-    K = 0
-    prev = lo
+    cap = Ms.shape[0]
+    K = int(st[0])
+    prev = st[1]
+    started = st[2] != 0.0
     for k in range(N):
         x = min(max(u[k], lo), hi)
-        if k == 0 or x > prev:
+        if not started or x > prev:
+            started = True
             # ascending: relays with a <= x switch up; pairs with M_j <= x are wiped out
             while K > 0 and Ms[K - 1] <= x:
                 K -= 1
-            if K < 4096:
+            if K < cap:
                 Ms[K] = x
                 ms[K] = _BIG
                 K += 1
@@ -108,16 +128,21 @@ def _grid(u, lo, hi, n, w, weighted, stride):
                 else:
                     F[row, c] = area / full
                 c += 1
+    st[0] = K
+    st[1] = prev
+    st[2] = 1.0 if started else 0.0
     return F
 
 
 @njit(cache=True)
-def _relax(u, g):
-    z = 0.0
+def _relax(u, g, zs, j):
+    """``u - z`` with ``z += g (u - z)`` per sample, starting from ``zs[j]`` and leaving the last z there."""
+    z = zs[j]
     out = np.empty(u.size)
     for k in range(u.size):
         z += g * (u[k] - z)
         out[k] = u[k] - z
+    zs[j] = z
     return out
 
 
@@ -127,24 +152,33 @@ def relaxation_bank(u, dt: float, tau_s) -> np.ndarray:
     a zero threshold, its eigenvalues ``1 / tau_j`` kept in 1/s so that the model is the same at any sample rate
    . Returns (len(u), len(tau_s))."""
     u = np.ascontiguousarray(u, dtype=float)
-    cols = [_relax(u, -math.expm1(-dt / float(t))) for t in tau_s]
+    zs = np.zeros(len(tau_s))
+    cols = [_relax(u, -math.expm1(-dt / float(t)), zs, j) for j, t in enumerate(tau_s)]
     return np.column_stack(cols) if cols else np.zeros((u.size, 0))
 
 
-def relaxation_output(u, dt: float, tau_s, w) -> np.ndarray:
-    """``relaxation_bank(u, dt, tau_s) @ w`` one column at a time (memory O(len(u)))."""
+def relaxation_output(u, dt: float, tau_s, w, state=None) -> np.ndarray:
+    """``relaxation_bank(u, dt, tau_s) @ w`` one column at a time (memory O(len(u))). ``state``: the filter states
+    z_j (one per time constant, zeros = relaxed), continued from and updated in place (streaming)."""
     u = np.ascontiguousarray(u, dtype=float)
+    zs = np.zeros(len(tau_s)) if state is None else state
     y = np.zeros(u.size)
-    for t, c in zip(tau_s, w):
+    for j, (t, c) in enumerate(zip(tau_s, w)):
         if c != 0.0:
-            y += c * _relax(u, -math.expm1(-dt / float(t)))
+            y += c * _relax(u, -math.expm1(-dt / float(t)), zs, j)
     return y
 
 
+def play_output(u, r, w, state=None):
+    """``sum_i w_i P_{r_i}[u]`` (plays from z = 0, or from ``state``, which is updated in place), memory
+    O(len(u))."""
+    z = np.zeros(len(r)) if state is None else state
+    return _play_output(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64),
+                        np.ascontiguousarray(w, dtype=np.float64), z)
+
+
 @njit(cache=True)
-def play_output(u, r, w):
-    """``sum_i w_i P_{r_i}[u]`` (plays from z = 0), memory O(len(u))."""
-    z = np.zeros(r.size)
+def _play_output(u, r, w, z):
     y = np.zeros(u.size)
     for k in range(u.size):
         x = u[k]

@@ -31,7 +31,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from . import DEFAULT_CREEP_TAU_S, DegenerateFitError, _segments, fit_stride, normalise_input, ridge_lstsq
-from ._duhem import duhem_run, duhem_terms, n_terms
+from ._duhem import duhem_run, duhem_state, duhem_terms, n_terms
 from ._grid import play_features, relaxation_bank, relaxation_output
 
 __all__ = ["DuhemH"]
@@ -95,11 +95,11 @@ class DuhemH:
         cols.append(np.ones((u[::stride].size, 1)))
         return np.column_stack(cols)
 
-    def _run(self, u, c, stride=1, jac=False):
+    def _run(self, u, c, stride=1, jac=False, state=None):
         vmin = self.v_lo_ - 1.0 * self.v_span_
         vmax = self.v_lo_ + 2.0 * self.v_span_
         return duhem_run(u, np.ascontiguousarray(c, dtype=float), self.degree, self.v_lo_, self.v_span_, self.eps,
-                         vmin, vmax, int(stride), bool(jac))
+                         vmin, vmax, int(stride), bool(jac), duhem_state() if state is None else state)
 
     # -- fit ----------------------------------------------------------------------------------------------------------
     def fit(self, q, v, dt: float, extra=None, row_mask=None) -> "DuhemH":
@@ -238,17 +238,24 @@ class DuhemH:
         return ridge_lstsq(A, b, np.ones(A.shape[1], bool), 1e-8)
 
     # -- evaluation ---------------------------------------------------------------------------------------------------
-    def predict(self, q, dt: float | None = None) -> np.ndarray:
-        """H [V] from the relaxed state at sample time ``dt`` [s] (default ``dt_``; the creep bank's time constants
-        are in seconds, the Duhem map is rate-independent)."""
+    def initial_state(self) -> dict:
+        """The relaxed state (streaming, see ``selfsense.hysteresis.models``): the map's state and the creep
+        filters'."""
+        return {"map": duhem_state(), "creep": np.zeros(len(self.creep_tau_s))}
+
+    def predict(self, q, dt: float | None = None, state: dict | None = None) -> np.ndarray:
+        """H [V] from the relaxed state, or from ``state`` (:meth:`initial_state`, updated in place), at sample time
+        ``dt`` [s] (default ``dt_``; the creep bank's time constants are in seconds, the Duhem map is
+        rate-independent)."""
         if self.coef_ is None:
             raise RuntimeError("DuhemH.predict called before fit()")
         dt = self.dt_ if dt is None else float(dt)
+        st = self.initial_state() if state is None else state
         u = self._u(q)
-        y = self._run(u, self.coef_)[0]
+        y = self._run(u, self.coef_, state=st["map"])[0]
         nc = len(self.creep_tau_s)
         if nc:
-            y = y + relaxation_output(u, dt, self.creep_tau_s, self.lin_coef_[:nc])
+            y = y + relaxation_output(u, dt, self.creep_tau_s, self.lin_coef_[:nc], st["creep"])
         return y + self.lin_coef_[nc]
 
     def __call__(self, q) -> np.ndarray:
@@ -272,6 +279,12 @@ class DuhemH:
         m.coef_ = None if d.get("coef") is None else np.asarray(d["coef"], dtype=float)
         m.lin_coef_ = np.asarray(d.get("lin_coef", []), dtype=float)
         m.extra_coef_ = np.asarray(d.get("extra_coef", []), dtype=float)
+        if m.coef_ is not None and m.coef_.shape != (2 * n_terms(m.degree),):
+            raise ValueError(f"H model duhem: coef must hold {2 * n_terms(m.degree)} values (degree {m.degree}, "
+                             f"ascending and descending), found shape {m.coef_.shape}")
+        if m.coef_ is not None and m.lin_coef_.shape != (len(m.creep_tau_s) + 1,):
+            raise ValueError(f"H model duhem: lin_coef must hold {len(m.creep_tau_s) + 1} values (creep bank and "
+                             f"offset), found shape {m.lin_coef_.shape}")
         return m
 
     def label(self) -> str:
