@@ -128,8 +128,9 @@ def test_rest_segments_recover_an_injected_offset_drift():
         assert err_after < 0.5 * err_before
 
 
-def test_estimate_command_runs_registry_models_in_batch(tmp_path):
-    """`selfsense estimate` with the default (registry) model reproduces the batch pipeline on a raw log."""
+def test_estimate_command_runs_the_offset_drift_member_in_batch(tmp_path):
+    """`selfsense estimate` with the default model, which on this dataset adopts the offset-drift member (fitted over
+    whole trials, so not streamable), reproduces the batch pipeline on a raw log."""
     import json
 
     from selfsense.cli.estimate import estimate_log, streamable

@@ -283,6 +283,29 @@ def test_stream_equals_batch_on_bundled_sample(tmp_path):
         _check_equal(stream, est, raw, sigs[trial], blocks=[len(raw) // 3])
 
 
+@pytest.mark.skipif(not (ROOT / "data" / "raw" / "sample").exists(), reason="data/raw/sample not present yet")
+def test_default_model_streams_through_selfsense_estimate(tmp_path):
+    """The model the pipeline selects by default (``h_model: auto``, here with ``drift: off``) streams: `selfsense
+    estimate` feeds the log chunk by chunk and equals the batch estimate within 1e-9 of range."""
+    from selfsense.cli.estimate import estimate_log, streamable
+
+    d = ROOT / "data" / "raw" / "sample"
+    meta = sio.load_trials(d).set_index("trial")
+    sigs = {t: stages.ingest(d, t, tmp_path / f"{t}.parquet") for t in meta.index}
+    est = SelfSensingEstimator(config=SensingConfig(drift="off"), rig=sio.load_rig(d)).fit(sigs, meta)
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict(), default=float))
+    assert streamable(model)
+    assert est.hysteresis_.kind in REGISTRY and est.hysteresis_.kind != "modified_pi"   # the registry's selection
+    t = "val_disp_large"
+    estimate_log(model, d, d / meta.loc[t, "file"], tmp_path / "out.parquet", chunk=777, progress=False)
+    got = pd.read_parquet(tmp_path / "out.parquet")
+    ref = est.estimate(sigs[t])
+    for col in ("dx_hat", "f_hat"):
+        err = float(np.max(np.abs(got[col].to_numpy() - ref[col].to_numpy()))) / float(np.ptp(ref[col].to_numpy()))
+        assert err <= 1e-9, (col, err)
+
+
 @pytest.mark.parametrize("fmt", ["csv", "scope_csv", "mat", "tdms"])
 def test_cli_reads_every_log_format(fitted, tmp_path, fmt):
     """`selfsense estimate` reads the formats the pipeline reads (CSV with extra channels or a scope preamble,
@@ -366,13 +389,14 @@ def test_selfsense_stream_errors_name_the_line_and_the_model(fitted, tmp_path, c
     assert selfsense_main(["stream", "--model", str(model), "--dataset", str(d), "--input", str(log)]) == 2
     err = capsys.readouterr().err
     assert "line 3" in err and "oops" in err
-    # a model that does not stream sample by sample is refused at once, naming the file
+    # a model with the offset-drift member (fitted over whole trials) is refused at once, naming file and member
     d2 = est.to_dict()
-    d2["leakage_s"] = 1e-9
-    m2 = tmp_path / "leaky.json"
+    d2["offset_drift"] = True
+    m2 = tmp_path / "drifting.json"
     m2.write_text(json.dumps(d2))
     assert selfsense_main(["stream", "--model", str(m2), "--dataset", str(d), "--input", str(log)]) == 2
-    assert "leaky.json" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "drifting.json" in err and "offset-drift member" in err
 
 
 def test_selfsense_stream_follows_a_file_that_is_still_being_written(fitted, tmp_path):

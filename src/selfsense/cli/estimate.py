@@ -139,10 +139,17 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     rig = sio.load_rig(dataset)
     if not streamable(model):
         return _estimate_batch(model, rig, log, out, chunk, full, offset)
-    stream = SelfSensingStream.from_json(model, rig, offset=offset)
     n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
     if not has_relay and offset == "relay":
         raise ValueError(f"{log}: no relay column, so the in-amp offset cannot be estimated; pass --offset VOLTS")
+    first = next(chunks, None)
+    # H's creep terms at the log's sample period (median step of the first chunk), as the batch uses the trial's
+    dt = None
+    if first is not None and len(first["t"]) > 1:
+        dt = float(np.median(np.diff(first["t"])))
+        dt = dt if dt > 0 else None
+    stream = SelfSensingStream.from_json(model, rig, offset=offset, dt=dt)
+    chunks = _chain(first, chunks)
 
     out_cols = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
     schema = pa.schema([(c, pa.float64()) for c in out_cols])
@@ -168,19 +175,24 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     return done
 
 
+def _chain(first, rest):
+    if first is not None:
+        yield first
+    yield from rest
+
+
 def streamable(model: str | Path) -> bool:
-    """True for models the sample-by-sample kernel runs: the thesis identification of the modified PI without drift
-    compensation (``h_model: modified_pi``, ``h_identification: thesis``); the registry's models are batch-only."""
+    """True for models the stream runs: every H model and member except the offset-drift member (a charge drift
+    fitted over the rest segments of the whole trial, which needs the whole trial)."""
     import json
 
     d = json.loads(Path(model).read_text())
-    h = d.get("hysteresis") or {}
-    return h.get("kind") in ("GaugedH", "ModifiedPI") and not d.get("leakage_s") and not d.get("offset_drift")
+    return not d.get("offset_drift")
 
 
 def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset) -> int:
-    """Whole-log estimation for models the streaming kernel does not run (the H(q) registry's models, drift
-    compensation: the rest-segment drift estimate needs the whole trial): the log is read in chunks, concatenated,
+    """Whole-log estimation for models the stream does not run (the offset-drift member: the rest-segment drift
+    estimate needs the whole trial): the log is read in chunks, concatenated,
     converted as the pipeline does (selfsense.io.to_si, selfsense.signals.prepare_trial) and estimated with
     ``SelfSensingEstimator.estimate``, exactly the batch pipeline. Memory grows with the log length."""
     import json

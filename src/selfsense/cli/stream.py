@@ -9,8 +9,10 @@ estimated as it arrives (:meth:`selfsense.sensing.streaming.SelfSensingStream.st
 and ``t,dx_hat,f_hat`` (s, m, N) is written and flushed at once, so the output equals the batch pipeline on the same
 samples. With ``--follow`` the input file is read on as it grows, until the command is interrupted (Ctrl-C).
 
-The models that stream sample by sample are those of ``selfsense estimate``'s streaming path (the thesis' modified
-PI without drift compensation); any other model JSON stops at once with an error naming it. A malformed line (a
+Every model the pipeline fits streams (any H(q) model kind, the leakage and rest-offset members, sliding offset and
+limiting), except one that carries the offset-drift member (fitted over whole trials): such a model JSON stops at
+once with an error naming it and the member. H's creep terms are discretised at ``--dt`` (default: the calibration's
+sample time). A malformed line (a
 field that is not a number, a wrong field count, a relay other than 0/1, a time that does not increase) stops with
 its line number; what was written before it stays valid.
 """
@@ -33,6 +35,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--input", default="-", help="CSV input file, or - for standard input (default)")
     p.add_argument("--follow", action="store_true", help="keep reading --input as it grows (until Ctrl-C)")
     p.add_argument("--poll", type=float, default=0.05, help="seconds between reads of a growing file (default 0.05)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="sample period [s] for H's creep terms (default: the calibration's sample time)")
     p.add_argument("--offset", default="relay",
                    help="in-amp offset of V_s: 'relay' (mean over the first shorted segment, default) or volts")
     return p
@@ -74,7 +78,7 @@ def _columns(header: str, rig, source: str) -> tuple[list[int], dict[str, float]
     return idx, {c: float(scales.get(c, 1.0)) for c in (*REQUIRED, "relay")}
 
 
-def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<stdin>") -> int:
+def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<stdin>", dt: float | None = None) -> int:
     """Estimate every CSV line of ``lines`` (the first is the header) and write ``t,dx_hat,f_hat`` to ``out`` as each
     arrives; returns the number of samples."""
     from selfsense import io as sio
@@ -82,11 +86,12 @@ def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<std
     from selfsense.sensing.streaming import SelfSensingStream
 
     if not streamable(model):
-        raise ValueError(f"{model}: this model does not stream sample by sample yet (only the thesis' modified PI "
-                         "without drift compensation does); use selfsense estimate, which estimates it in batch")
+        raise ValueError(f"{model}: the model carries the offset-drift member (offset_drift: true), a drift fitted "
+                         "over the rest segments of whole trials, which a stream has not seen yet; refit with "
+                         "calibration: drift: off to stream, or use selfsense estimate (batch) on the finished log")
     rig = sio.load_rig(dataset)
     off = offset if offset == "relay" else float(offset)
-    stream = SelfSensingStream.from_json(model, rig, offset=off)
+    stream = SelfSensingStream.from_json(model, rig, offset=off, dt=dt)
     it = iter(lines)
     header = next(it, None)
     if header is None:
@@ -122,13 +127,15 @@ def main(argv: list[str] | None = None) -> int:
     if a.follow and a.input == "-":
         raise ValueError("--follow reads a file that is still being written: give it with --input FILE")
     if a.input == "-":
-        return 0 if stream_lines(a.model, a.dataset, _lines(sys.stdin, False, a.poll), sys.stdout, a.offset) >= 0 else 1
+        return 0 if stream_lines(a.model, a.dataset, _lines(sys.stdin, False, a.poll), sys.stdout, a.offset,
+                                 dt=a.dt) >= 0 else 1
     path = Path(a.input)
     if not path.is_file():
         raise FileNotFoundError(2, "No such file or directory", str(path))
     with open(path, newline="") as fh:
         try:
-            stream_lines(a.model, a.dataset, _lines(fh, a.follow, a.poll), sys.stdout, a.offset, source=str(path))
+            stream_lines(a.model, a.dataset, _lines(fh, a.follow, a.poll), sys.stdout, a.offset, source=str(path),
+                         dt=a.dt)
         except KeyboardInterrupt:  # --follow ends with Ctrl-C: what was written is complete
             return 0
     return 0
