@@ -8,9 +8,11 @@ CPU; the Snakemake run of (d) gets 2 cores), as an absolute value and as a ratio
 NumPy reference measured in the same run:
 
 (a) modified PI operator with creep (15 play, 15 superposition, 15 x 4 creep; thesis 000_18d138f03f1777c3.txt
-    eq. 42): hysteresis package kernel (ModifiedPI.apply) and the fused streaming-layout kernel vs a NumPy
-    reference vectorised across operators with a Python loop over samples (run on fewer samples).
-(b) SelfSensingStream: per-sample step [us] and block mode [samples/s], equality to the batch pipeline.
+    eq. 42): hysteresis package kernel (ModifiedPI.apply) vs a NumPy reference vectorised across operators with a
+    Python loop over samples (run on fewer samples).
+(b) SelfSensingStream: per-sample step [us] and block mode [samples/s], equality to the batch pipeline; per model
+    kind (every H model the pipeline can select, fitted on data/raw/sample) and for the default model on
+    data/raw/tweezer_sim: cost per sample in blocks of 1 (step), 100 and a whole trial.
 (c) QP calibration (fit_modified_pi) on a 60,000-sample trial: Gram assembly and solve.
 (d) the Snakemake pipeline on data/raw/tweezer_sim, cold, --cores 2, as benchmarks/pipeline_speed.py measures it,
     with the Table 3 and the modes table of that run.
@@ -100,29 +102,21 @@ def numpy_operator_reference(model, x):
 
 
 def bench_operator(quick):
-    from selfsense.sensing.streaming import fused_gamma_kernel, pack_operator
-
     model = _synth.operator(dt=1e-4)
     N = 400_000 if quick else 2_000_000
     Nref = 4_000 if quick else 20_000
     t = np.arange(N) * 1e-4
     x = _synth.Q_MAX * (0.5 - 0.5 * np.cos(2 * np.pi * 0.7 * t)) * (0.7 + 0.3 * np.sin(2 * np.pi * 0.13 * t))
     model.apply(x[:100])  # JIT warm-up (cached)
-    P, S0 = pack_operator(model)
-    yf = np.empty(N)
-    fused_gamma_kernel(x[:100], P, S0.copy(), yf[:100])
     t_pkg = best_time(lambda: model.apply(x), repeat=3 if quick else 5)
     y_pkg = model.apply(x)[0]
-    t_fused = best_time(lambda: fused_gamma_kernel(x, P, S0.copy(), yf), repeat=3 if quick else 5)
     t_ref = best_time(lambda: numpy_operator_reference(model, x[:Nref]), repeat=1 if quick else 2)
     y_ref = numpy_operator_reference(model, x[:Nref])
     rng = float(np.ptp(y_pkg))
     err_ref = float(np.max(np.abs(y_ref - y_pkg[:Nref])) / rng)
-    err_fused = float(np.max(np.abs(yf - y_pkg)) / rng)
-    r_pkg, r_fused, r_ref = N / t_pkg, N / t_fused, Nref / t_ref
+    r_pkg, r_ref = N / t_pkg, Nref / t_ref
     return {
-        "N": N, "Nref": Nref, "rate_pkg": r_pkg, "rate_fused": r_fused, "rate_ref": r_ref,
-        "ratio_pkg": r_pkg / r_ref, "ratio_fused": r_fused / r_ref, "err_ref": err_ref, "err_fused": err_fused,
+        "N": N, "Nref": Nref, "rate_pkg": r_pkg, "rate_ref": r_ref, "ratio_pkg": r_pkg / r_ref, "err_ref": err_ref,
         "ok": r_pkg >= 1e7 and r_pkg / r_ref >= 100,
     }
 
@@ -190,7 +184,7 @@ def numpy_stream_step_reference(est, raw):
 
 
 def bench_stream(quick):
-    from selfsense.sensing.streaming import SelfSensingStream, stream_step_kernel
+    from selfsense.sensing.streaming import SelfSensingStream
 
     est = _synth.estimator(dt=1e-4)
     N = 1_000_000 if quick else 4_000_000
@@ -221,14 +215,7 @@ def bench_stream(quick):
         for k in range(Nstep):
             st(ul[k], vl[k], rl[k], tl[k])
 
-    def steps_kernel():
-        s.reset()
-        P, S = s._P, s._S
-        for k in range(Nstep):
-            stream_step_kernel(P, S, tl[k], ul[k], vl[k], rl[k], 0.0, True)
-
     t_step = best_time(steps, repeat=3) / Nstep
-    t_stepk = best_time(steps_kernel, repeat=3) / Nstep
     s.reset()
     st_out = np.array([s.step(ul[k], vl[k], rl[k], tl[k]) for k in range(Nstep)])
     step_eq = float(np.max(np.abs(st_out[:, 0] - dx[:Nstep])) / np.ptp(b["dx_hat"].to_numpy()))
@@ -239,10 +226,94 @@ def bench_stream(quick):
     t_ref_step = t_ref / Nref
     return {
         "N": N, "Nstep": Nstep, "Nref": Nref, "rate_block": N / t_block, "rate_batch": N / t_batch,
-        "step_us": t_step * 1e6, "stepk_us": t_stepk * 1e6, "ref_step_us": t_ref_step * 1e6,
+        "step_us": t_step * 1e6, "ref_step_us": t_ref_step * 1e6,
         "err_dx": err_dx, "err_f": err_f, "step_eq": step_eq, "err_ref": err_ref,
         "ok": t_step <= 10e-6 and N / t_block >= 1e6 and max(err_dx, err_f) <= 1e-12,
+        "kinds": bench_stream_kinds(quick),
     }
+
+
+STREAM_KINDS = (  # label, estimator configuration (fitted on data/raw/sample, drift off so that the model streams)
+    ("linear", {"h_model": "linear", "h_identification": "joint"}),
+    ("pi", {"h_model": "pi", "h_identification": "joint"}),
+    ("preisach", {"h_model": "preisach", "h_identification": "joint"}),
+    ("ri", {"h_model": "ri", "h_identification": "joint"}),
+    ("duhem", {"h_model": "duhem", "h_identification": "joint"}),
+    ("modified_pi", {"h_model": "modified_pi", "h_identification": "joint"}),
+    ("GaugedH (thesis modified PI)", {"h_model": "modified_pi", "h_identification": "thesis"}),
+    ("RICreepH (thesis RI)", {"h_model": "ri", "h_identification": "thesis"}),
+)
+
+
+def _stream_costs(est, raw, sig, repeat):
+    """us per sample of SelfSensingStream in blocks of 1 (step), 100 and the whole trial; max |stream - batch| of
+    range over dx and f."""
+    from selfsense.sensing.streaming import SelfSensingStream
+
+    s = SelfSensingStream(est)
+    u, v, r, t = (np.ascontiguousarray(raw[k].to_numpy(dtype=float)) for k in ("u_cmd", "v_shunt", "relay", "t"))
+    n = len(u)
+    s.process(u[:10], v[:10], r[:10], t[:10])   # JIT warm-up
+
+    def blocks(B, m=n):
+        s.reset()
+        for a in range(0, m, B):
+            s.process(u[a:a + B], v[a:a + B], r[a:a + B], t[a:a + B])
+
+    n1 = min(n, 5000)
+    out = {"n": n, "us_whole": best_time(lambda: blocks(n), repeat) / n * 1e6,
+           "us_100": best_time(lambda: blocks(100), repeat) / n * 1e6,
+           "us_step": best_time(lambda: blocks(1, n1), 1) / n1 * 1e6}
+    s.reset()
+    dx, f = s.process(u, v, r, t)
+    b = est.estimate(sig)
+    out["err"] = max(float(np.max(np.abs(dx - b["dx_hat"].to_numpy())) / max(np.ptp(b["dx_hat"].to_numpy()), 1e-300)),
+                     float(np.max(np.abs(f - b["f_hat"].to_numpy())) / max(np.ptp(b["f_hat"].to_numpy()), 1e-300)))
+    h = est.hysteresis_
+    out["model"] = h.label() if hasattr(h, "label") else type(h).__name__
+    return out
+
+
+def bench_stream_kinds(quick):
+    """Per model kind on data/raw/sample, and the pipeline's default model on data/raw/tweezer_sim."""
+    import yaml
+
+    from selfsense import io as sio
+    from selfsense import stages
+    from selfsense.sensing import SelfSensingEstimator, SensingConfig
+
+    repeat = 2 if quick else 3
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="selfsense_bench_kinds_") as td:
+        d = ROOT / "data" / "raw" / "sample"
+        meta = sio.load_trials(d).set_index("trial")
+        sigs = {t: stages.ingest(d, t, Path(td) / f"{t}.parquet") for t in meta.index}
+        val = next(t for t in meta.index if meta.loc[t, "role"] == "validation")
+        raw = sio.read_log(d / meta.loc[val, "file"])
+        for label, cfg in STREAM_KINDS:
+            est = SelfSensingEstimator(config=SensingConfig(drift="off", **cfg), rig=sio.load_rig(d)).fit(sigs, meta)
+            if label == "linear":   # h_model 'linear' lets the selection keep a PI: stream the straight line itself
+                from selfsense.hysteresis.models import LinearH
+
+                c0 = meta.index[(meta["role"] == "calibration") & (meta["tip"] == "free")][0]
+                est.hysteresis_ = LinearH().fit(sigs[c0]["q"].to_numpy(), sigs[c0]["V"].to_numpy(),
+                                                float(np.median(np.diff(sigs[c0]["t"].to_numpy()))))
+            rows.append({"label": label, "dataset": "sample", "trial": val, **_stream_costs(est, raw, sigs[val], repeat)})
+        # the default model of the pipeline on the bundled virtual tweezer (config.yaml's calibration keys)
+        d = ROOT / "data" / "raw" / "tweezer_sim"
+        meta = sio.load_trials(d).set_index("trial")
+        sigs = {t: stages.ingest(d, t, Path(td) / f"tw_{t}.parquet") for t in meta.index}
+        cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
+        est = SelfSensingEstimator(config=stages.sensing_config(cfg), rig=sio.load_rig(d)).fit(sigs, meta)
+        val = next(t for t in meta.index if meta.loc[t, "role"] == "validation")
+        if est.offset_drift_:
+            rows.append({"label": "default (h_model: auto)", "dataset": "tweezer_sim", "trial": val,
+                         "note": "the default adopts the offset-drift member here: estimated in batch"})
+        else:
+            raw = sio.read_log(d / meta.loc[val, "file"])
+            rows.append({"label": "default (h_model: auto)", "dataset": "tweezer_sim", "trial": val,
+                         **_stream_costs(est, raw, sigs[val], repeat)})
+    return rows
 
 
 # ------------------------------------------------------------------------------------------------ (c) QP fit
@@ -479,12 +550,15 @@ def render(res, quick, argv, total):
     L.append(f"| a | modified PI operator, ModifiedPI.apply (hysteresis kernel) | {fmt_rate(a['rate_pkg'])} samples/s | "
              f"{fmt_rate(a['rate_ref'])} samples/s | {a['ratio_pkg']:.0f}x | >= 1e7 /s and >= 100x | "
              f"{verdict(a['ok'])} |")
-    L.append(f"| a | modified PI operator, fused streaming-layout kernel | {fmt_rate(a['rate_fused'])} samples/s | "
-             f"{fmt_rate(a['rate_ref'])} samples/s | {a['ratio_fused']:.0f}x | (same) | "
-             f"{verdict(a['rate_fused'] >= 1e7 and a['ratio_fused'] >= 100)} |")
     b = res["b"]
-    L.append(f"| b | stream per-sample `step()` | {b['step_us']:.2f} us/sample | {b['ref_step_us']:.1f} us/sample "
-             f"| {b['ref_step_us'] / b['step_us']:.0f}x | <= 10 us | {verdict(b['step_us'] <= 10)} |")
+    L.append(f"| b | stream per-sample `step()` (thesis modified PI) | {b['step_us']:.2f} us/sample | "
+             f"{b['ref_step_us']:.1f} us/sample | {b['ref_step_us'] / b['step_us']:.1f}x | <= 10 us | "
+             f"{verdict(b['step_us'] <= 10)} |")
+    dft = next((k for k in b.get("kinds", []) if k["label"].startswith("default") and "us_100" in k), None)
+    if dft is not None:
+        L.append(f"| b | stream, default model on tweezer_sim ({dft['model']}), blocks of 100 samples | "
+                 f"{dft['us_100']:.2f} us/sample (whole trial {dft['us_whole']:.2f}, step {dft['us_step']:.1f}) | "
+                 f"| | <= 1 us | {verdict(dft['us_100'] <= 1.0)} |")
     L.append(f"| b | stream block `process()` | {fmt_rate(b['rate_block'])} samples/s | "
              f"{fmt_rate(b['rate_batch'])} samples/s (batch pipeline) | {b['rate_block'] / b['rate_batch']:.1f}x | "
              f">= 1e6 /s | {verdict(b['rate_block'] >= 1e6)} |")
@@ -519,17 +593,28 @@ def render(res, quick, argv, total):
           f"15 play, 15 superposition (one identity, 7 positive, 7 negative thresholds), 15 x 4 creep operators; "
           f"input: {a['N']:,} samples of a modulated raised cosine; NumPy reference on the first {a['Nref']:,} "
           f"samples (per-sample rates compared). Max |difference| / range: NumPy reference vs kernel "
-          f"{a['err_ref']:.1e}; fused streaming kernel vs package kernel {a['err_fused']:.1e}.", "",
+          f"{a['err_ref']:.1e}.", "",
           "### (b) Streaming estimator",
           f"Synthetic 10 kHz raw log (1 s relay segment, then a modulated drive), {b['N']:,} samples; estimator with "
           f"GaugedH(ModifiedPI) as above. Block mode: one `process()` call over the whole log. Per-sample: "
-          f"{b['Nstep']:,} `step(u, v, relay, t)` calls from a Python loop: {b['step_us']:.2f} us each, of which "
-          f"the bare jitted kernel call costs {b['stepk_us']:.2f} us (the rest is the method's argument "
-          f"handling). The NumPy per-sample reference (same chain, operator sums vectorised with NumPy) ran "
+          f"{b['Nstep']:,} `step(u, v, relay, t)` calls from a Python loop: {b['step_us']:.2f} us each (a block of "
+          f"one sample through the three links: front kernel, H stream, back kernel). The NumPy per-sample reference (same chain, operator sums vectorised with NumPy) ran "
           f"{b['Nref']:,} samples: {b['ref_step_us']:.1f} us/sample; its max deviation from the stream "
           f"{b['err_ref']:.1e} of range. Stream vs batch pipeline (io.to_si -> signals.prepare_trial -> "
           f"estimator.estimate): dx {b['err_dx']:.1e}, f {b['err_f']:.1e} of range; step() vs process(): "
           f"{b['step_eq']:.1e}.", "",
+          "Per model kind (fitted on data/raw/sample with `drift: off`; streamed over one validation trial) and the "
+          "pipeline's default model on data/raw/tweezer_sim (config.yaml), us per sample by block size, and the "
+          "stream's max deviation from the batch estimate (of range, dx and f):", "",
+          "| model | dataset, trial | samples | step (block of 1) | blocks of 100 | whole trial | stream vs batch |",
+          "|---|---|---|---|---|---|---|"]
+    for k in b.get("kinds", []):
+        if "us_100" in k:
+            L.append(f"| {k['label']}: {k['model']} | {k['dataset']}, {k['trial']} | {k['n']:,} | {k['us_step']:.1f} | "
+                     f"{k['us_100']:.2f} | {k['us_whole']:.2f} | {k['err']:.1e} |")
+        else:
+            L.append(f"| {k['label']} | {k['dataset']}, {k['trial']} | | {k['note']} | | | |")
+    L += ["",
           "### (c) QP calibration",
           f"fit_modified_pi on {c['N']:,} samples (15 play, 15 superposition, 15 x 4 creep, Clarabel): total "
           f"{c['t_total']:.3f} s, status {c['status']}, fit rms {c['rms_pct']:.3f} % of range. Split (same steps "

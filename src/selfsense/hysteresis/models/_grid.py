@@ -158,14 +158,30 @@ def relaxation_bank(u, dt: float, tau_s) -> np.ndarray:
 
 
 def relaxation_output(u, dt: float, tau_s, w, state=None) -> np.ndarray:
-    """``relaxation_bank(u, dt, tau_s) @ w`` one column at a time (memory O(len(u))). ``state``: the filter states
-    z_j (one per time constant, zeros = relaxed), continued from and updated in place (streaming)."""
+    """``relaxation_bank(u, dt, tau_s) @ w`` in one pass (memory O(len(u))), columns with a zero weight skipped.
+    ``state``: the filter states z_j (one per time constant, zeros = relaxed), continued from and updated in place
+    (streaming)."""
     u = np.ascontiguousarray(u, dtype=float)
     zs = np.zeros(len(tau_s)) if state is None else state
+    g = np.array([-math.expm1(-dt / float(t)) for t in tau_s])
+    return _relax_output(u, g, np.asarray(w, dtype=float)[:len(g)], zs)
+
+
+@njit(cache=True)
+def _relax_output(u, g, w, zs):
+    """``sum_j w_j (u - z_j)``, ``z_j += g_j (u - z_j)``, summed in the order of j from 0 (the sum of
+    ``w_j * _relax(u, g_j)`` columns, bit for bit)."""
     y = np.zeros(u.size)
-    for j, (t, c) in enumerate(zip(tau_s, w)):
-        if c != 0.0:
-            y += c * _relax(u, -math.expm1(-dt / float(t)), zs, j)
+    for j in range(g.size):
+        if w[j] == 0.0:
+            continue
+        z = zs[j]
+        gj = g[j]
+        wj = w[j]
+        for k in range(u.size):
+            z += gj * (u[k] - z)
+            y[k] += wj * (u[k] - z)
+        zs[j] = z
     return y
 
 
