@@ -368,7 +368,7 @@ class PreisachH(LinearParamH):
         return F
 
     def _basis_state(self):
-        return {"grid": grid_state(), "play": np.zeros(self.n_play)}
+        return {"grid": grid_state(self.n_grid), "play": np.zeros(self.n_play)}
 
     def _n_basis(self) -> int:
         return self.n_grid * (self.n_grid + 1) // 2 + self.n_play

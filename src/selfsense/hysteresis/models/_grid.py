@@ -19,14 +19,19 @@ __all__ = ["preisach_grid_features", "preisach_grid_output", "relaxation_bank", 
            "grid_state", "play_output"]
 
 _BIG = 1e300
+#: the weighted grid output is updated by the changed cells only and summed over every cell afresh every _RESYNC
+#: output samples (counted from the relaxed state, so any split into blocks gives the same bits)
+_RESYNC = 256.0
 #: capacity of the Preisach grid's stack of dominant extrema (nested reversals beyond it are dropped, as before)
 GRID_STACK = 4096
 
 
-def grid_state() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The relaxed state of :func:`preisach_grid_output` (all relays down): stacks of dominant maxima / minima and
-    ``[K (stack depth), previous input, started (0/1)]``. Streaming callers keep these arrays between blocks."""
-    return np.empty(GRID_STACK), np.empty(GRID_STACK), np.array([0.0, 0.0, 0.0])
+def grid_state(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The relaxed state of an ``n`` x ``n`` Preisach grid (all relays down): stacks of dominant maxima / minima,
+    ``[K (stack depth), previous input, started (0/1), output samples so far, weighted output]`` and the cells'
+    up-fractions. Streaming callers keep these
+    arrays between blocks (:func:`preisach_grid_output`)."""
+    return np.empty(GRID_STACK), np.empty(GRID_STACK), np.zeros(5), np.zeros(n * (n + 1) // 2)
 
 
 @njit(cache=True)
@@ -41,10 +46,10 @@ def _prim(x, b0, top):
 
 def preisach_grid_features(u, lo, hi, n, stride=1):
     """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row, from the relaxed state."""
-    Ms, ms, st = grid_state()
+    Ms, ms, st, Fc = grid_state(n)
     st[1] = lo
     return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
-                 int(stride), Ms, ms, st)
+                 int(stride), Ms, ms, st, Fc)
 
 
 def preisach_grid_output(u, lo, hi, n, w, state=None):
@@ -52,22 +57,83 @@ def preisach_grid_output(u, lo, hi, n, w, state=None):
     ``state`` (from :func:`grid_state`, updated in place): continue from it, so that blocks fed one after the other
     give exactly the output of one call on the whole input."""
     if state is None:
-        state = grid_state()
-    Ms, ms, st = state
+        state = grid_state(n)
+    Ms, ms, st, Fc = state
+    if Fc.shape != (n * (n + 1) // 2,):
+        raise ValueError(f"preisach_grid_output: state for {Fc.shape} cells, the grid has {n * (n + 1) // 2}")
     if st[2] == 0.0:
         st[1] = lo
     return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
-                 np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st)[:, 0]
+                 np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc)[:, 0]
 
 
 @njit(cache=True)
-def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st):
+def _cell_fraction(Ms, ms, K, a0, a1, b0, b1, full):
+    """Up-fraction of the cell [a0, a1] x [b0, b1] under the staircase (``Ms``, ``ms``, depth ``K``)."""
+    area = 0.0
+    # pieces of g over [a0, a1]: g = ms[j] on (Ms[j+1], Ms[j]], -inf above Ms[0]
+    for jj in range(K):
+        p1 = Ms[jj]
+        p0 = Ms[jj + 1] if jj + 1 < K else -_BIG
+        if p1 <= a0:
+            break
+        if p0 >= a1:
+            continue
+        q0 = max(p0, a0)
+        q1 = min(p1, a1)
+        top = min(ms[jj], b1)
+        if top <= b0:
+            continue
+        area += _prim(q1, b0, top) - _prim(q0, b0, top)
+    return area / full
+
+
+@njit(cache=True)
+def _mark(dirty, dl, nd, n, lo, h, a_gt, a_lt, b_lt, b_gt):
+    """Mark the cells with a1 > a_gt, a0 < a_lt, b0 < b_lt and b1 > b_gt (the cells an input step can change).
+    Only the index ranges around the bounds are visited (one cell of margin); the conditions themselves are
+    evaluated on the same expressions as the integration loop. Newly marked cells are appended to the list ``dl``
+    (``nd`` entries so far); returns the new count."""
+    i0 = max(0, int(math.floor((max(a_gt, lo - h) - lo) / h)) - 1)
+    i1 = min(n - 1, int(math.ceil((min(a_lt, lo + (n + 1) * h) - lo) / h)) + 1)
+    jlo = max(0, int(math.floor((max(b_gt, lo - h) - lo) / h)) - 1)
+    jhi = int(math.ceil((min(b_lt, lo + (n + 1) * h) - lo) / h)) + 1
+    for i in range(i0, i1 + 1):
+        a0 = lo + i * h
+        a1 = a0 + h
+        if not (a1 > a_gt and a0 < a_lt):
+            continue
+        base = i * (i + 1) // 2
+        for jb in range(jlo, min(i, jhi) + 1):
+            b0 = lo + jb * h
+            b1 = b0 + h
+            if b0 < b_lt and b1 > b_gt and not dirty[base + jb]:
+                dirty[base + jb] = True
+                dl[nd] = base + jb
+                nd += 1
+    return nd
+
+
+@njit(cache=True)
+def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
     """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it); with
     ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample). The state (stacks
-    ``Ms``, ``ms``; ``st = [K, previous input, started]``) is read at the start and written back at the end.
+    ``Ms``, ``ms``; ``st = [K, previous input, started]``; the cells' up-fractions ``Fc``) is read at the start and
+    written back at the end.
 
     Cell (i, j), j <= i, covers a in [g_i, g_i+1], b in [g_j, g_j+1] (half of it when i == j); its feature is the
-    up-fraction of its area, in [0, 1]."""
+    up-fraction of its area, in [0, 1]. Only the cells an input step can change are integrated again (the others
+    keep their fraction bit for bit, see below), so a sample costs O(cells near the input), not O(n^2):
+
+    * ascending prev -> x: the staircase changes for a in (prev, x] only, and relays with b >= x stay down: cells
+      with a1 > prev, a0 < x and b0 < x;
+    * descending prev -> x, the first pair with m_j >= x set to x and the pairs after it dropped: relays with
+      b >= prev were down and stay down, cells below x keep one piece of the staircase: cells with a1 > x,
+      a0 < M_j, b0 < prev and (b1 > x, or any b when pairs were dropped: their breakpoints split cells).
+
+    The first sample, or a full stack, integrates every cell. The weighted output adds ``w_c (F_c_new - F_c_old)``
+    of the changed cells to the previous output and is summed over every cell in order every ``_RESYNC`` samples
+    (rounding cannot accumulate beyond ~1e-14 of the output's scale)."""
     N = u.size
     nc = n * (n + 1) // 2
     F = np.zeros((N, 1)) if weighted else np.zeros(((N + stride - 1) // stride, nc))
@@ -76,61 +142,94 @@ def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st):
     K = int(st[0])
     prev = st[1]
     started = st[2] != 0.0
+    dirty = np.zeros(nc, dtype=np.bool_)
+    dl = np.empty(nc, dtype=np.int64)   # the marked cells, in marking order
+    nd = 0
+    ci = np.empty(nc, dtype=np.int64)   # column / row of every cell
+    cj = np.empty(nc, dtype=np.int64)
+    c = 0
+    for i in range(n):
+        for jb in range(i + 1):
+            ci[c] = i
+            cj[c] = jb
+            c += 1
+    y = st[4]
     for k in range(N):
         x = min(max(u[k], lo), hi)
         if not started or x > prev:
-            started = True
             # ascending: relays with a <= x switch up; pairs with M_j <= x are wiped out
             while K > 0 and Ms[K - 1] <= x:
                 K -= 1
-            if K < cap:
+            if K < cap and started:
                 Ms[K] = x
                 ms[K] = _BIG
                 K += 1
+                nd = _mark(dirty, dl, nd, n, lo, h, prev, x, x, -_BIG)
+            else:
+                if K < cap:
+                    Ms[K] = x
+                    ms[K] = _BIG
+                    K += 1
+                for c in range(nc):
+                    if not dirty[c]:
+                        dirty[c] = True
+                        dl[nd] = c
+                        nd += 1
+            started = True
         elif x < prev:
             # descending: relays with b >= x switch down: g := min(g, x); pairs after the first m_j >= x go
             j = 0
             while j < K and ms[j] < x:
                 j += 1
             if j < K:
+                dropped = K - 1 > j
+                top = Ms[j]
                 ms[j] = x
                 K = j + 1
+                nd = _mark(dirty, dl, nd, n, lo, h, x, top, prev, -_BIG if dropped else x)
         prev = x
         if k % stride != 0:
             continue
         row = k if weighted else k // stride
-        # cell areas
-        c = 0
-        for i in range(n):
+        resync = weighted and (st[3] % _RESYNC == 0.0)
+        st[3] += 1.0
+        for d in range(nd):
+            c = dl[d]
+            i = ci[c]
+            jb = cj[c]
             a0 = lo + i * h
             a1 = a0 + h
-            for jb in range(i + 1):
-                b0 = lo + jb * h
-                b1 = b0 + h
-                area = 0.0
-                # pieces of g over [a0, a1]: g = ms[j] on (Ms[j+1], Ms[j]], -inf above Ms[0]
-                for jj in range(K):
-                    p1 = Ms[jj]
-                    p0 = Ms[jj + 1] if jj + 1 < K else -_BIG
-                    if p1 <= a0:
-                        break
-                    if p0 >= a1:
-                        continue
-                    q0 = max(p0, a0)
-                    q1 = min(p1, a1)
-                    top = min(ms[jj], b1)
-                    if top <= b0:
-                        continue
-                    area += _prim(q1, b0, top) - _prim(q0, b0, top)
-                full = h * h if jb < i else 0.5 * h * h
-                if weighted:
-                    F[row, 0] += w[c] * (area / full)
-                else:
-                    F[row, c] = area / full
-                c += 1
+            b0 = lo + jb * h
+            b1 = b0 + h
+            full = h * h if jb < i else 0.5 * h * h
+            new = _cell_fraction(Ms, ms, K, a0, a1, b0, b1, full)
+            if weighted and not resync:
+                y += w[c] * (new - Fc[c])
+            Fc[c] = new
+            dirty[c] = False
+        nd = 0
+        if not weighted:
+            for c in range(nc):
+                F[row, c] = Fc[c]
+        if weighted:
+            if resync:   # the ordered sum over every cell, so that rounding of the updates cannot accumulate
+                y = 0.0
+                for c in range(nc):
+                    y += w[c] * Fc[c]
+            F[row, 0] = y
+    # cells marked after the last output row: integrate them now, so that the stored fractions match the state
+    for d in range(nd):
+        c = dl[d]
+        i = ci[c]
+        jb = cj[c]
+        a0 = lo + i * h
+        b0 = lo + jb * h
+        full = h * h if jb < i else 0.5 * h * h
+        Fc[c] = _cell_fraction(Ms, ms, K, a0, a0 + h, b0, b0 + h, full)
     st[0] = K
     st[1] = prev
     st[2] = 1.0 if started else 0.0
+    st[4] = y
     return F
 
 
