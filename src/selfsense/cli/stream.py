@@ -10,8 +10,9 @@ and ``t,dx_hat,f_hat`` (s, m, N) is written and flushed at once, so the output e
 samples. With ``--follow`` the input file is read on as it grows, until the command is interrupted (Ctrl-C).
 
 Every model the pipeline fits streams (any H(q) model kind, the leakage and rest-offset members, sliding offset and
-limiting), except one that carries the offset-drift member (fitted over whole trials): such a model JSON stops at
-once with an error naming it and the member. H's creep terms are discretised at ``--dt`` (default: the calibration's
+limiting). A model with the offset-drift member (fitted over whole trials in batch) stops at once with an error
+naming it and the member, unless ``--drift causal`` asks for the drift fitted on the rest segments seen so far
+(:class:`selfsense.sensing.streaming.CausalOffsetDrift`). H's creep terms are discretised at ``--dt`` (default: the calibration's
 sample time). A malformed line (a
 field that is not a number, a wrong field count, a relay other than 0/1, a time that does not increase) stops with
 its line number; what was written before it stays valid.
@@ -35,6 +36,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--input", default="-", help="CSV input file, or - for standard input (default)")
     p.add_argument("--follow", action="store_true", help="keep reading --input as it grows (until Ctrl-C)")
     p.add_argument("--poll", type=float, default=0.05, help="seconds between reads of a growing file (default 0.05)")
+    p.add_argument("--drift", choices=("refuse", "causal"), default="refuse",
+                   help="a model with the offset-drift member: refuse it (default) or fit the drift on the rest "
+                        "segments seen so far (causal)")
     p.add_argument("--dt", type=float, default=None,
                    help="sample period [s] for H's creep terms (default: the calibration's sample time)")
     p.add_argument("--offset", default="relay",
@@ -78,20 +82,22 @@ def _columns(header: str, rig, source: str) -> tuple[list[int], dict[str, float]
     return idx, {c: float(scales.get(c, 1.0)) for c in (*REQUIRED, "relay")}
 
 
-def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<stdin>", dt: float | None = None) -> int:
+def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<stdin>", dt: float | None = None,
+                 drift: str = "refuse") -> int:
     """Estimate every CSV line of ``lines`` (the first is the header) and write ``t,dx_hat,f_hat`` to ``out`` as each
     arrives; returns the number of samples."""
     from selfsense import io as sio
     from selfsense.cli.estimate import streamable
     from selfsense.sensing.streaming import SelfSensingStream
 
-    if not streamable(model):
+    if not streamable(model) and drift != "causal":
         raise ValueError(f"{model}: the model carries the offset-drift member (offset_drift: true), a drift fitted "
-                         "over the rest segments of whole trials, which a stream has not seen yet; refit with "
-                         "calibration: drift: off to stream, or use selfsense estimate (batch) on the finished log")
+                         "over the rest segments of whole trials, which a stream has not seen yet; pass --drift causal "
+                         "(the drift fitted on the rest segments seen so far), refit with calibration: drift: off, or "
+                         "use selfsense estimate (batch) on the finished log")
     rig = sio.load_rig(dataset)
     off = offset if offset == "relay" else float(offset)
-    stream = SelfSensingStream.from_json(model, rig, offset=off, dt=dt)
+    stream = SelfSensingStream.from_json(model, rig, offset=off, dt=dt, drift=drift)
     it = iter(lines)
     header = next(it, None)
     if header is None:
@@ -128,14 +134,14 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError("--follow reads a file that is still being written: give it with --input FILE")
     if a.input == "-":
         return 0 if stream_lines(a.model, a.dataset, _lines(sys.stdin, False, a.poll), sys.stdout, a.offset,
-                                 dt=a.dt) >= 0 else 1
+                                 dt=a.dt, drift=a.drift) >= 0 else 1
     path = Path(a.input)
     if not path.is_file():
         raise FileNotFoundError(2, "No such file or directory", str(path))
     with open(path, newline="") as fh:
         try:
             stream_lines(a.model, a.dataset, _lines(fh, a.follow, a.poll), sys.stdout, a.offset, source=str(path),
-                         dt=a.dt)
+                         dt=a.dt, drift=a.drift)
         except KeyboardInterrupt:  # --follow ends with Ctrl-C: what was written is complete
             return 0
     return 0

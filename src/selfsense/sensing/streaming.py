@@ -31,7 +31,8 @@ H is evaluated at the sample time ``dt`` given to the stream, or the calibration
 stamps only (the batch uses the trial's median sample period: the same when the log is sampled at the calibration
 rate). The **offset-drift member** (``offset_drift``: the charge drift fitted over the rest segments of the whole
 trial, ``SelfSensingEstimator.rest_drift``) looks at samples that have not arrived yet: a model that carries it is
-refused, naming the member (refit with ``calibration: drift: off`` to stream). Units: SI (s, V, C, m, N).
+refused, naming the member, unless the stream is asked for ``drift="causal"`` (:class:`CausalOffsetDrift`: the same
+ramp fitted on the rest segments seen so far, between links 1 and 2). Units: SI (s, V, C, m, N).
 """
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ from numba import njit
 
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
-__all__ = ["SelfSensingStream", "StreamError", "HStream", "stream_kinds"]
+__all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "stream_kinds"]
 
 # ---- front state (float64) ------------------------------------------------------------------------------------
 (_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE) = range(12)
@@ -96,11 +97,12 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
 
 
 @njit(cache=True)
-def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out):
+def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
     """Link 1 on a block: SI conversion, relay offset, charge (eq. 57) and the leakage member. Returns (status,
     index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak]; ``S`` the front state
     (updated in place); ``t`` ignored unless ``use_t``. Writes the charge the model uses (``q_out``, after the
-    leakage member), the measured charge (``qm_out``) and V."""
+    leakage member), the measured charge (``qm_out``), V and the sample's time (``t_out``: the time stamp, or
+    the sample period accumulated from 0 without time stamps)."""
     for k in range(u.shape[0]):
         rk = relay[k]
         if rk != 0.0 and rk != 1.0:
@@ -140,6 +142,7 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out):
         S[_CSUM] = csum
         S[_BASE] = base
         S[_T_LAST] = t_last
+        t_out[k] = t_last
         S[_VS_LAST] = Vs
         S[_V_LAST] = V
         S[_NSEEN] += 1.0
@@ -284,6 +287,133 @@ class HStream:
         return np.asarray(m.predict(Q, self.dt, st), dtype=float)
 
 
+@njit(cache=True)
+def _drift_accumulate(stats, tt, m, dts):
+    """Add the rest samples' pseudo-measurements ``m`` at times ``tt`` (sample intervals ``dts``) to the normal
+    equations of ``m = a t + b t^2`` in sample order (any split into blocks gives the same sums): stats = [sum t^2,
+    t^3, t^4, t m, t^2 m, min t, max t, count, rest time]."""
+    for k in range(tt.shape[0]):
+        stats[8] += dts[k]
+        t = tt[k]
+        t2 = t * t
+        stats[0] += t2
+        stats[1] += t2 * t
+        stats[2] += t2 * t2
+        stats[3] += t * m[k]
+        stats[4] += t2 * m[k]
+        stats[5] = min(stats[5], t)
+        stats[6] = max(stats[6], t)
+        stats[7] += 1.0
+
+
+class CausalOffsetDrift:
+    """The offset-drift member for a stream: the charge drift ``dQ(t) = a t + b t^2`` (t since the relay opened) of
+    ``SelfSensingEstimator.rest_drift`` (thesis 000_18d138f03f1777c3.txt eqs. 52, 55: at rest the free-tip relation
+    ``V - H(Q) = slope Q`` holds, so its residual there is charge drift), fitted on the rest samples seen so far
+    instead of the whole trial.
+
+    Rest samples are those with the relay open and ``|V| < max(0.5 V, 1 % of the largest |V| so far)``. At each one
+    the residual ``r = V - H_d(Q_c) - slope Q_c`` of the corrected charge ``Q_c = Q - dQ(t)`` and its sensitivity
+    ``s = dr/dc`` (a second H stream on ``Q_c - 1e-8 C``, the batch's finite difference) give a measurement of the
+    drift, ``m = dQ(t) - r / s``; (a, b) are refitted by least squares on all measurements so far whenever a rest
+    run ends, provided the rest samples add up to >= 0.3 s and span >= 40 % of the time since the relay opened (the
+    batch's rules applied to the record so far), and used from the next sample on. O(1) state; the ramp form only
+    (the batch may choose an offset that wanders, which needs the whole trial)."""
+
+    DELTA = 1e-8
+
+    def __init__(self, estimator, dt: float | None):
+        hd = estimator.drift_hysteresis_ if estimator.drift_hysteresis_ is not None else estimator.hysteresis_
+        self.slope = float(estimator.h_slope_)
+        self._hd = HStream(hd, dt) if estimator.drift_hysteresis_ is not None else None
+        self._hd_delta = HStream(hd, dt)
+        self.reset()
+
+    def reset(self) -> None:
+        # [t_open (NaN: relay not yet open), vmax, previous sample at rest (0/1), a, b, n updates]
+        self._s = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0])
+        self._stats = np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.inf, -np.inf, 0.0, 0.0])
+        self._t_last = np.nan
+        if self._hd is not None:
+            self._hd.reset()
+        self._hd_delta.reset()
+
+    def get_state(self):
+        return {"s": self._s.copy(), "stats": self._stats.copy(), "t_last": self._t_last,
+                "hd": None if self._hd is None else self._hd.get_state(), "hd_delta": self._hd_delta.get_state()}
+
+    def set_state(self, st) -> None:
+        self._s, self._stats, self._t_last = np.array(st["s"], float), np.array(st["stats"], float), float(st["t_last"])
+        if self._hd is not None:
+            self._hd.set_state(st["hd"])
+        self._hd_delta.set_state(st["hd_delta"])
+
+    @property
+    def coefficients(self) -> tuple[float, float]:
+        """(a [C/s], b [C/s^2]) in use."""
+        return float(self._s[3]), float(self._s[4])
+
+    def process(self, t, Q, V, relay, h):
+        """Corrected charge and H on it for a block (H from the stream ``h``); updates the fit at rest-run ends."""
+        n = len(Q)
+        s = self._s
+        shorted = relay == 1.0
+        opened = ~shorted
+        if np.isnan(s[0]) and opened.any():
+            s[0] = t[int(np.argmax(opened))]
+        tt = np.where(shorted | np.isnan(s[0]), 0.0, t - (0.0 if np.isnan(s[0]) else s[0]))
+        absV = np.where(opened, np.abs(V), 0.0)
+        vmax = np.maximum.accumulate(np.concatenate([[s[1]], absV]))[1:]
+        rest = opened & (np.abs(V) < np.maximum(0.5, 0.01 * vmax))
+        prev_rest = np.concatenate([[s[2] != 0.0], rest[:-1]])
+        ends = np.flatnonzero(prev_rest & ~rest)   # refit before these samples
+        cuts = [0, *[int(e) for e in ends if e > 0], n]
+        if len(ends) and ends[0] == 0:
+            self._refit(tt[0] if n else 0.0)
+        Qc = np.empty(n)
+        VH = np.empty(n)
+        dts = np.diff(np.concatenate([[self._t_last], t])) if n else np.zeros(0)
+        dts[np.isnan(dts)] = 0.0
+        for a0, a1 in zip(cuts[:-1], cuts[1:]):
+            if a1 <= a0:
+                continue
+            seg = slice(a0, a1)
+            if a0 > 0:
+                self._refit(tt[a0])
+            dq = np.where(shorted[seg], 0.0, s[3] * tt[seg] + s[4] * tt[seg] * tt[seg])
+            qc = Q[seg] - dq
+            vh = h.process(qc)
+            hd = vh if self._hd is None else self._hd.process(qc)
+            hd_d = self._hd_delta.process(qc - self.DELTA)
+            rs = rest[seg]
+            if rs.any():
+                r0 = (V[seg] - hd - self.slope * qc)[rs]
+                r1 = (V[seg] - hd_d - self.slope * (qc - self.DELTA))[rs]
+                sens = (r1 - r0) / self.DELTA
+                ok = np.abs(sens) > 0
+                m = np.where(ok, dq[rs] - r0 / np.where(ok, sens, 1.0), dq[rs])
+                _drift_accumulate(self._stats, np.ascontiguousarray(tt[seg][rs]), np.ascontiguousarray(m),
+                                  np.ascontiguousarray(dts[seg][rs]))
+            Qc[seg] = qc
+            VH[seg] = vh
+        if n:
+            self._t_last = float(t[-1])
+        s[1] = vmax[-1] if n else s[1]
+        s[2] = 1.0 if (n and rest[-1]) else (0.0 if n else s[2])
+        return Qc, VH
+
+    def _refit(self, t_now: float) -> None:
+        st = self._stats
+        if st[7] < 3 or st[8] < 0.3 or (st[6] - st[5]) < 0.4 * max(t_now, 1e-9):
+            return
+        A = np.array([[st[0], st[1]], [st[1], st[2]]])
+        if not np.linalg.cond(A) < 1e12:
+            return
+        a, b = np.linalg.solve(A, np.array([st[3], st[4]]))
+        self._s[3], self._s[4] = float(a), float(b)
+        self._s[5] += 1.0
+
+
 def _rig_value(rig: Any, key: str) -> float:
     return float(rig[key] if isinstance(rig, Mapping) else getattr(rig, key))
 
@@ -303,6 +433,9 @@ class SelfSensingStream:
     offset : ``"relay"`` (default): in-amp offset = mean ``V_s`` of the first shorted segment, which must open
         the stream (as ``charge_from_shunt(offset="relay")``); or a number [V] (``V_s`` units, i.e. after the
         in-amp gain) to subtract from the first sample on.
+    drift : for a model with the offset-drift member: ``"refuse"`` (default; the batch estimate fits the drift over
+        the whole trial, which a stream cannot reproduce) or ``"causal"`` (:class:`CausalOffsetDrift`: the same
+        ramp fitted on the rest segments seen so far).
 
     ``step(u_cmd, v_shunt, relay=0, t=None) -> (dx_hat [m], f_hat [N])``;
     ``process(u_cmd, v_shunt, relay=None, t=None) -> (dx_hat, f_hat)`` arrays (``full=True``: a dict that also
@@ -310,16 +443,20 @@ class SelfSensingStream:
     sample fed by ``step`` goes through the same code as a block.
     """
 
-    def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay"):
+    def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay",
+                 drift: str = "refuse"):
         from selfsense.sensing.estimator import _rig_get
 
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
-        if getattr(estimator, "offset_drift_", False):
+        if getattr(estimator, "offset_drift_", False) and drift != "causal":
             raise NotImplementedError(
                 "SelfSensingStream: the model carries the offset-drift member (offset_drift: true), a charge drift "
-                "fitted over the rest segments of the whole trial, which a stream has not seen yet; refit with "
-                "calibration: drift: off to stream this device")
+                "fitted over the rest segments of the whole trial, which a stream has not seen yet; stream it with "
+                "drift='causal' (fitted on the rest segments seen so far: docs/realtime.md) or refit with "
+                "calibration: drift: off")
+        if drift not in ("refuse", "causal"):
+            raise ValueError(f"drift must be 'refuse' or 'causal', got {drift!r}")
         rig = estimator.rig if rig is None else rig
         if rig is None:
             raise ValueError("SelfSensingStream needs the rig (shunt resistance, gains)")
@@ -346,6 +483,7 @@ class SelfSensingStream:
             estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit))], dtype=float)
         self.h = HStream(estimator.hysteresis_, self.dt)
+        self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
         self._SF0 = np.zeros(_NS_FRONT)
         if not isinstance(offset, str):
             self._SF0[_OFF_MODE] = _OFF_FIXED
@@ -384,20 +522,25 @@ class SelfSensingStream:
         self._SF = self._SF0.copy()
         self._SB = np.zeros(2)
         self.h.reset()
+        if self.drift is not None:
+            self.drift.reset()
 
     def get_state(self) -> dict:
         """Copy of the whole state (restore with :meth:`set_state`)."""
-        return {"front": self._SF.copy(), "back": self._SB.copy(), "h": self.h.get_state()}
+        return {"front": self._SF.copy(), "back": self._SB.copy(), "h": self.h.get_state(),
+                "drift": None if self.drift is None else self.drift.get_state()}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
-        if not isinstance(state, Mapping) or set(state) != {"front", "back", "h"}:
-            raise ValueError("state must be a dict from get_state() with keys front, back, h")
+        if not isinstance(state, Mapping) or set(state) != {"front", "back", "h", "drift"}:
+            raise ValueError("state must be a dict from get_state() with keys front, back, h, drift")
         f = np.asarray(state["front"], dtype=np.float64)
         b = np.asarray(state["back"], dtype=np.float64)
         if f.shape != self._SF0.shape or b.shape != (2,):
             raise ValueError(f"state: front must have shape {self._SF0.shape} and back (2,), got {f.shape}, {b.shape}")
         self._SF, self._SB = f.copy(), b.copy()
         self.h.set_state(state["h"])
+        if self.drift is not None:
+            self.drift.set_state(state["drift"])
 
     @property
     def n_samples(self) -> int:
@@ -452,11 +595,15 @@ class SelfSensingStream:
         q = np.empty(n)
         qm = np.empty(n)
         V = np.empty(n)
+        ts = np.empty(n)
         SF = self._SF.copy()  # commit the state only if the whole block is valid
-        st, k = front_kernel(self._PF, SF, tt, u, v, r, dt, use_t, q, V, qm)
+        st, k = front_kernel(self._PF, SF, tt, u, v, r, dt, use_t, q, V, qm, ts)
         if st:
             self._raise(int(st), f"sample {self.n_samples + int(k)} (block index {int(k)})")
-        VH = self.h.process(q)
+        if self.drift is not None:
+            q, VH = self.drift.process(ts, q, V, r, self.h)
+        else:
+            VH = self.h.process(q)
         dx = np.empty(n)
         f = np.empty(n)
         aux = np.empty((n, 4)) if full else np.empty((0, 4))
