@@ -240,7 +240,7 @@ STREAM_KINDS = (  # label, estimator configuration (fitted on data/raw/sample, d
     ("ri", {"h_model": "ri", "h_identification": "joint"}),
     ("duhem", {"h_model": "duhem", "h_identification": "joint"}),
     ("modified_pi", {"h_model": "modified_pi", "h_identification": "joint"}),
-    ("GaugedH (thesis modified PI)", {"h_model": "modified_pi", "h_identification": "thesis"}),
+    ("modified_pi (thesis identification)", {"h_model": "modified_pi", "h_identification": "thesis"}),
     ("RICreepH (thesis RI)", {"h_model": "ri", "h_identification": "thesis"}),
 )
 

@@ -145,7 +145,9 @@ from selfsense.hysteresis.models import loop_orientation  # noqa: E402,F401  (pu
 
 
 class GaugedH:
-    """``H(Q) = sign * (G[Q] - c Q)``: an operator ``G`` fitted to ``sign * H + c Q``.
+    """``H(Q) = sign * (G[Q] - c Q)``: an operator ``G`` fitted to ``sign * H + c Q``. Model JSON files written before
+    the thesis identification became the registry's ``ModifiedPIH`` hold this type; it is still read and evaluated
+    (and streamed), and hand-made operators can be wrapped in it.
 
     Play operators with non-negative weights (thesis eq. 32, constraints 68-75) only make counter-clockwise loops
     with rising branches; a piezo's H(q) runs clockwise with increasing charge (paper Fig. 12) and, in the eq. (55)
@@ -178,40 +180,25 @@ def auto_creep_count(duration_s: float, dt: float) -> int:
     return int(np.ceil(np.log10(max(duration_s / dt, 1.0)))) + 1
 
 
-def _fit_hysteresis(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
-    """``h_identification: thesis``: Kuhnen's modified PI operator (thesis App. A) fitted to the H(q) calibration
-    target of the first free-tip trial through the gauge of :class:`GaugedH` (the method as the thesis states it);
-    returns (model, report dict)."""
-    t0 = time.perf_counter()
-    n_creep = cfg.n_creep
-    if n_creep == "auto":
-        n_creep = auto_creep_count(dt * len(Q), dt)
-    sign = loop_orientation(Q, y)
-    ys = sign * y
-    slope = float(np.dot(Q - Q.mean(), ys - ys.mean()) / max(np.dot(Q - Q.mean(), Q - Q.mean()), 1e-300))
-    c = 2.0 * max(0.0, -slope)
-    target = ys + c * Q
-    from selfsense.hysteresis.identify import fit_modified_pi
+def _fit_thesis_modified_pi(cfg: SensingConfig, Q: np.ndarray, y: np.ndarray, dt: float):
+    """``h_identification: thesis`` with ``h_model: modified_pi``: Kuhnen's modified PI operator (thesis App. A) fitted
+    to the H(q) calibration target of the first free-tip trial, the method as the thesis states it. The model is
+    the registry's :class:`~selfsense.hysteresis.models.ModifiedPIH` (one modified-PI identification for both
+    identifications: the QP of ``hysteresis.identify``, the sign / linear gauge built in); a fit no better than a
+    straight line is kept, as the thesis would, with a warning in the report. Returns (model, report dict)."""
+    from selfsense.hysteresis.models import DegenerateFitError, ModifiedPIH
 
-    inner, rep = fit_modified_pi(
-        Q, target, dt, n_play=cfg.n_play, n_sup=cfg.n_sup, n_creep=int(n_creep), creep=cfg.creep and n_creep > 0,
-        solver=cfg.solver, fit_z0=cfg.fit_z0,
-    )
-    report = dataclasses.asdict(rep) if dataclasses.is_dataclass(rep) else dict(rep)
-    model = GaugedH(inner, sign, c)
-    pred = model(Q)
-    rng = float(np.ptp(y)) or 1.0
-    report.update({
-        "rms_pct": float(np.sqrt(np.mean((pred - y) ** 2)) / rng * 100),
-        "max_pct": float(np.max(np.abs(pred - y)) / rng * 100),
-        "rms_v": float(np.sqrt(np.mean((pred - y) ** 2))),
-        "gauge_sign": sign,
-        "gauge_c": c,
-        "n_creep": int(n_creep),
-    })
-    report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in report.items()}
-    # wall-clock time goes to the log, never into an artefact (same input and config -> bit-identical JSON)
-    report.pop("seconds", None)
+    t0 = time.perf_counter()
+    model = ModifiedPIH(n_play=cfg.n_play, n_sup=cfg.n_sup, creep=cfg.creep, n_creep=cfg.n_creep, solver=cfg.solver,
+                        fit_z0=cfg.fit_z0)
+    warnings = []
+    try:
+        model.fit(Q, y, dt)
+    except DegenerateFitError as exc:
+        warnings.append(str(exc))
+    report = {k: (float(v) if isinstance(v, np.floating) else v) for k, v in model.fit_report_.items()}
+    report.pop("seconds", None)   # wall-clock time goes to the log, never into an artefact
+    report["warnings"] = warnings
     log.info("H(q) fit: %s, %d samples, %.2f s, RMS %.3f %% / max %.3f %% of range", cfg.h_model, len(Q),
              time.perf_counter() - t0, report["rms_pct"], report["max_pct"])
     report["h_model"] = cfg.h_model
@@ -527,7 +514,7 @@ class SelfSensingEstimator:
                 dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
                 Q = df_fit["q"].to_numpy()
                 y = h_target(df_fit["V"].to_numpy(), Q, slope)
-                self.hysteresis_, rep = _fit_hysteresis(cfg, Q, y, dt)
+                self.hysteresis_, rep = _fit_thesis_modified_pi(cfg, Q, y, dt)
         rep["trial"] = free_id
         self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
         self._fit_ranges(cal_trials, cal)
