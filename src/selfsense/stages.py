@@ -229,12 +229,21 @@ def score(dataset_dir: str | Path, estimate_paths: Mapping[str, str | Path], out
     return t3
 
 
+#: compare_modes runs a full garbage collection after trials of at least this many samples (memory of long trials)
+GC_MIN_SAMPLES = 1_000_000
+
+
 def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], config: Mapping[str, Any],
-                  out_csv: str | Path, out_md: str | Path) -> pd.DataFrame:
+                  out_csv: str | Path, out_md: str | Path, model_json: str | Path | None = None,
+                  estimate_paths: Mapping[str, str | Path] | None = None) -> pd.DataFrame:
     """Table 3 for both calibration modes of the seeds (thesis eq. 55 vs paper eq. 23) and three ways to identify H(q),
     same data and other settings: the H model selected by blocked CV, identified jointly on every free-tip and
     force-reference calibration trial (the default); Kuhnen's modified PI with creep (thesis eqs. 36-43) on the
-    free-tip trial only, as the thesis does; the RI model of the third seed + creep bank on the free-tip trials."""
+    free-tip trial only, as the thesis does; the RI model of the third seed + creep bank on the free-tip trials.
+
+    ``model_json`` / ``estimate_paths``: the pipeline's fitted model and its estimates. A combination whose
+    configuration is the pipeline model's is not fitted nor estimated again: its row is scored on the pipeline's
+    estimates (the same numbers, without refitting the model selection)."""
     from selfsense.report import tables
 
     rig = sio.load_rig(dataset_dir)
@@ -257,12 +266,19 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
         combos = tuple((h, ident, mode) for h, ident in (("auto", "joint"), ("modified_pi", "thesis"), ("ri", "thesis"))
                        for mode in ("thesis", "onsite"))
         ests = {}
+        reused = None   # the combination the pipeline already fitted and estimated
+        pipeline = load_estimator(dataset_dir, model_json) if model_json is not None and estimate_paths else None
         for h_model, ident, mode in combos:
             cfg = dict(config)
             extra = {} if ident == "joint" else {"drift": "off"}
             cfg["calibration"] = dict(config.get("calibration", {}) or {}, h_mode=mode, h_model=h_model,
                                       h_identification=ident, **extra)
-            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+            sc = sensing_config(cfg)
+            if pipeline is not None and reused is None and sc == pipeline.config:
+                ests[(h_model, ident, mode)] = pipeline
+                reused = (h_model, ident, mode)
+                continue
+            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig).fit(sigs, meta)
         pts: dict = {c: [] for c in combos}
         left_out = {}
         for t in sorted(signal_paths):
@@ -275,14 +291,20 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                     continue
             s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t], columns=_ESTIMATE_INPUTS)
             for c in combos:
-                e = ests[c].estimate(s)
+                if c == reused and t in estimate_paths:
+                    e = pd.read_parquet(estimate_paths[t], columns=["dx_hat", "f_hat"])
+                else:
+                    e = ests[c].estimate(s)
                 e = pd.DataFrame({"dx_hat": e["dx_hat"].to_numpy(), "f_hat": e["f_hat"].to_numpy(),
                                   "dx_ref": s["dx_ref"].to_numpy(), "f_ref": s["f_ref"].to_numpy()})
                 pts[c].append(tables.per_trial_table({t: e}, meta.reset_index()))
                 del e
-                gc.collect()
+            # the frames are freed by reference counting; a full collection (0.1 s each with the fitted models
+            # alive) only after a long trial, where cyclic garbage would matter for the sample budget
+            long = len(s) >= GC_MIN_SAMPLES
             del s
-            gc.collect()
+            if long:
+                gc.collect()
     finally:
         pa.set_memory_pool(pool)
     rows = []

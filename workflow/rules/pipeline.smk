@@ -144,6 +144,8 @@ rule score:
 rule compare_modes:
     input:
         signals=per_trial("signals", all_trials),
+        model=res("{dataset}", "model", "sensing.json"),
+        estimates=per_trial("estimates", all_trials),
     output:
         csv=report(
             res("{dataset}", "tables", "modes.csv"),
