@@ -47,6 +47,23 @@ def _log_of(bench: Path, bench_root: Path) -> Path:
     return logs / rel
 
 
+def slurm_probe_s() -> float | None:
+    """Seconds that ``scontrol show config`` takes here, or None without SLURM's client. Snakemake's SLURM executor
+    plugin (in the lock for the cluster profiles) runs it at every Snakemake start when ``sinfo`` is on PATH: a
+    machine with SLURM's client installed but its controller down (after the scale-out test, say) waits for its
+    time-out at every start; one without SLURM, or with its controller up, does not."""
+    import shutil
+
+    if shutil.which("sinfo") is None or shutil.which("scontrol") is None:
+        return None
+    t0 = time.perf_counter()
+    try:
+        subprocess.run(["scontrol", "show", "config"], capture_output=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        pass
+    return time.perf_counter() - t0
+
+
 def run(dataset: str, cores: int, numba_cold: bool, keep: Path | None) -> dict:
     work = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="selfsense-speed-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -80,7 +97,7 @@ def run(dataset: str, cores: int, numba_cold: bool, keep: Path | None) -> dict:
             r["startup"] += float(t[-1][0])
             r["compute"] += float(t[-1][1])
     return {"dataset": dataset, "cores": cores, "numba_cold": numba_cold, "snakemake_s": sm_clock, "wall_s": wall,
-            "load": (load0, load1), "rules": dict(rules), "workdir": str(work)}
+            "load": (load0, load1), "rules": dict(rules), "workdir": str(work), "slurm_probe_s": slurm_probe_s()}
 
 
 def markdown(res: dict) -> str:
@@ -92,6 +109,10 @@ def markdown(res: dict) -> str:
         f"({res['wall_s']:.1f} s wall for the whole `snakemake` process); load average "
         f"{res['load'][0][0]:.2f} before, {res['load'][1][0]:.2f} after (machine with {os.cpu_count()} cores).",
         "",
+        *([f"On this machine SLURM's client is installed and `scontrol show config` takes {res['slurm_probe_s']:.1f} s: "
+           "Snakemake's SLURM executor plugin runs it at every start (its controller is down here), and that wait is "
+           "part of the wall time above; a machine without SLURM, or with its controller up, does not wait.", ""]
+          if res.get("slurm_probe_s") is not None and res["slurm_probe_s"] > 1.0 else []),
         "| rule | jobs | job wall, s (sum) | start-up, s | compute, s | other, s | start-up / (start-up + compute) |",
         "|---|---|---|---|---|---|---|",
     ]
