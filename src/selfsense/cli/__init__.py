@@ -29,6 +29,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
                  "estimate a DAQ log with a fitted model (CSV, Parquet, TDMS, MAT; streamed where the model allows)"),
     "stream": ("selfsense.cli.stream", "main",
                "estimate samples as they come: CSV lines on stdin (or a growing file) -> t,dx_hat,f_hat lines"),
+    "export-c": ("selfsense.cli.export_c", "main",
+                 "write a fitted model as dependency-free C99 (ss_init, ss_step) for a real-time controller"),
     "export": ("selfsense.cli.export", "main",
                "write each trial's results as .mat and .csv with units, V, q, estimates, coefficients, config"),
     "gap": ("selfsense.cli.gap", "main", "sim-to-real gap diagnostic (diagnose, blind, blind-calibrate)"),

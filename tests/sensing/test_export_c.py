@@ -1,0 +1,160 @@
+"""``selfsense export-c``: the generated C99 estimator against the batch pipeline and the Python stream, for every
+model kind the estimator can hold (issue: real-time self-sensing with the model the pipeline selects).
+
+The C code is compiled with the system C compiler (``cc``; the tests skip with the reason when there is none) with
+``-std=c99 -O2 -Wall -Wextra -pedantic -Werror`` and run on the raw samples of two trials; batch == stream == C
+within 1e-9 of the signal range.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from selfsense.sensing import SelfSensingEstimator
+from selfsense.sensing.estimator import GaugedH
+from selfsense.sensing.export_c import ExportError, export_c
+from selfsense.sensing.streaming import SelfSensingStream
+
+from test_streaming import _fit, _raw, make_dataset  # noqa: E402  (same folder, pytest's prepend import mode)
+
+TOL = 1e-9
+CC = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler (cc, gcc or clang) on PATH")
+
+DRIVER = r"""
+#include <stdio.h>
+#include "selfsense_estimator.h"
+int main(void) {
+    ss_state s; double u, v, dx, f; int r, st; long k = 0;
+    ss_init(&s);
+    while (scanf("%lf,%lf,%d", &u, &v, &r) == 3) {
+        st = ss_step(&s, u, v, r, &dx, &f);
+        if (st != SS_OK) { fprintf(stderr, "sample %ld: status %d\n", k, st); return 10 + st; }
+        printf("%.17g,%.17g\n", dx, f);
+        k++;
+    }
+    return 0;
+}
+"""
+
+KINDS = {
+    "linear": {"h_model": "pi", "h_identification": "joint"},   # H replaced by the straight line below
+    "pi": {"h_model": "pi", "h_identification": "joint"},
+    "preisach": {"h_model": "preisach", "h_identification": "joint"},
+    "ri": {"h_model": "ri", "h_identification": "joint"},
+    "duhem": {"h_model": "duhem", "h_identification": "joint"},
+    "modified_pi": {"h_model": "modified_pi", "h_identification": "joint"},
+    "modified_pi (thesis)": {"h_model": "modified_pi", "h_identification": "thesis"},
+    "RICreepH": {"h_model": "ri", "h_identification": "thesis"},
+}
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    from selfsense.hysteresis.models import LinearH
+
+    tmp = tmp_path_factory.mktemp("export_c")
+    d = make_dataset(tmp)
+    out = {}
+    for name, cfg in KINDS.items():
+        est, sigs = _fit(d, tmp, dc_offset=False, **cfg)
+        est = SelfSensingEstimator.from_dict(est.to_dict(), est.rig)
+        if name == "linear":
+            cal = sigs["free_cal"]
+            est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
+        # every member the C code carries: leakage, rest offset, sliding offset (dx and f), limiting
+        est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
+        est.config.dc_offset = est.config.dc_offset_force = True
+        out[name] = est
+    h = out["modified_pi (thesis)"].hysteresis_   # a model file written before ModifiedPIH holds a GaugedH
+    legacy = SelfSensingEstimator.from_dict(out["modified_pi (thesis)"].to_dict(), out["pi"].rig)
+    legacy.hysteresis_ = GaugedH(h.inner_, h.sign_, h.c_)
+    out["GaugedH"] = SelfSensingEstimator.from_dict(legacy.to_dict(), legacy.rig)
+    assert type(out["GaugedH"].hysteresis_).__name__ == "GaugedH"
+    return d, sigs, out, tmp
+
+
+def _build(est, d, tmp: Path, name: str) -> Path:
+    model = tmp / f"{name.replace(' ', '_')}.json"
+    model.write_text(json.dumps(est.to_dict()))
+    od = tmp / f"c_{name.replace(' ', '_').replace('(', '').replace(')', '')}"
+    h, c = export_c(model, d, od, dt=1e-3)
+    src = c.read_text() + h.read_text()
+    assert not any(w in src for w in ("malloc", "calloc", "realloc", "free(")), "the generated code allocates"
+    (od / "driver.c").write_text(DRIVER)
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror", "-o", str(od / "drv"),
+                    str(od / "driver.c"), str(c), "-I", str(od), "-lm"], check=True, capture_output=True, text=True)
+    return od / "drv"
+
+
+def _run(exe: Path, raw) -> np.ndarray:
+    inp = "".join(f"{u!r},{v!r},{int(r)}\n" for u, v, r in raw[["u_cmd", "v_shunt", "relay"]].itertuples(index=False))
+    p = subprocess.run([str(exe)], input=inp, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    return np.array([[float(x) for x in line.split(",")] for line in p.stdout.split()])
+
+
+def _err(a, ref) -> float:
+    ref = np.asarray(ref, float)
+    return float(np.max(np.abs(np.asarray(a) - ref))) / max(float(np.ptp(ref)), 1e-300)
+
+
+@needs_cc
+@pytest.mark.parametrize("name", [*KINDS, "GaugedH"])
+def test_c_equals_batch_and_stream_every_kind(models, name):
+    d, sigs, ests, tmp = models
+    est = ests[name]
+    exe = _build(est, d, tmp, name)
+    for trial in ("free_val", "obj_val"):
+        raw = _raw(d, trial)
+        got = _run(exe, raw)
+        batch = est.estimate(sigs[trial])
+        stream = SelfSensingStream(est, dt=1e-3).process(raw["u_cmd"], raw["v_shunt"], raw["relay"])
+        assert np.ptp(batch["V_H"]) > 0 and np.ptp(batch["dx_hat"]) > 0
+        for j, col in enumerate(("dx_hat", "f_hat")):
+            assert _err(got[:, j], batch[col]) <= TOL, (name, trial, col, _err(got[:, j], batch[col]))
+            assert _err(got[:, j], stream[j]) <= TOL, (name, trial, col, "stream")
+    # deterministic: the same samples give the same bytes
+    raw = _raw(d, "obj_val")
+    np.testing.assert_array_equal(_run(exe, raw), got)
+
+
+@needs_cc
+def test_c_reports_a_stream_without_its_relay_segment(models):
+    d, sigs, ests, tmp = models
+    exe = _build(ests["pi"], d, tmp, "pi_relay")
+    p = subprocess.run([str(exe)], input="0.0,0.0,0\n", capture_output=True, text=True)
+    assert p.returncode == 11 and "status 1" in p.stderr   # SS_ERR_NO_RELAY
+
+
+def test_export_refuses_bad_models_naming_file_and_key(models, tmp_path):
+    from selfsense.cli import main as selfsense_main
+
+    d, sigs, ests, _ = models
+    good = ests["preisach"].to_dict()
+    cases = {}
+    bad = json.loads(json.dumps(good))
+    bad["hysteresis"]["params"]["kind"] = "tanh_net"
+    cases["kind"] = (bad, "unknown kind 'tanh_net'")
+    bad = json.loads(json.dumps(good))
+    bad["hysteresis"]["params"]["coef"] = bad["hysteresis"]["params"]["coef"][:7]
+    cases["shape"] = (bad, "coef must hold")
+    bad = json.loads(json.dumps(good))
+    del bad["coef"]
+    cases["missing"] = (bad, "missing key 'coef'")
+    bad = json.loads(json.dumps(good))
+    bad["offset_drift"] = True
+    cases["drift"] = (bad, "offset-drift member")
+    for name, (dd, msg) in cases.items():
+        p = tmp_path / f"{name}.json"
+        p.write_text(json.dumps(dd))
+        with pytest.raises(ExportError, match=msg) as e:
+            export_c(p, d, tmp_path / f"out_{name}")
+        assert str(p) in str(e.value)
+        assert not (tmp_path / f"out_{name}").exists(), "a refused model must not leave files behind"
+        assert selfsense_main(["export-c", str(p), "--dataset", str(d), "--out", str(tmp_path / "cli")]) == 2
