@@ -97,6 +97,9 @@ def results_figures() -> dict[str, list[Fig]]:
         *[F(f"streaming estimator, the pipeline's default model on `tweezer_sim` ({k['model']}), blocks of 100 "
             "samples", f"{k['us_100']:.2f} us/sample (step {k['us_step']:.0f} us)", "<= 1 us", _met(k["us_100"] <= 1.0))
           for k in b.get("kinds", []) if k["label"].startswith("default") and "us_100" in k],
+        *[F(f"generated C (`selfsense export-c`), the pipeline's default model on `tweezer_sim` ({k['model']})",
+            f"{k['c_ns'] / 1e3:.3f} us/sample", "<= 0.2 us", _met(k["c_ns"] <= 200))
+          for k in b.get("kinds", []) if k["label"].startswith("default") and "c_ns" in k],
         F("stream equal to the batch pipeline", f"{max(b['err_dx'], b['err_f']):.0e} of range", "<= 1e-12",
           _met(max(b["err_dx"], b["err_f"]) <= 1e-12)),
         F("QP calibration of a 60,000-sample trial (modified PI)", f"{c['t_total']:.2f} s", "<= 1 s", _met(c["ok"])),

@@ -245,6 +245,67 @@ STREAM_KINDS = (  # label, estimator configuration (fitted on data/raw/sample, d
 )
 
 
+C_BENCH_DRIVER = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "selfsense_estimator.h"
+int main(int argc, char **argv) {
+    long n = 0, cap = 1 << 16, k, rep, reps = argc > 1 ? atol(argv[1]) : 20;
+    double *u = malloc(cap * sizeof *u), *v = malloc(cap * sizeof *v), dx, f, sink = 0.0, best = 1e300, ns;
+    int *r = malloc(cap * sizeof *r);
+    struct timespec a, b;
+    ss_state s;
+    while (scanf("%lf,%lf,%d", &u[n], &v[n], &r[n]) == 3) {
+        if (++n == cap) { cap *= 2; u = realloc(u, cap * sizeof *u); v = realloc(v, cap * sizeof *v);
+                          r = realloc(r, cap * sizeof *r); }
+    }
+    for (rep = 0; rep < reps; rep++) {
+        ss_init(&s);
+        clock_gettime(CLOCK_MONOTONIC, &a);
+        for (k = 0; k < n; k++) { if (ss_step(&s, u[k], v[k], r[k], &dx, &f)) return 3; sink += dx + f; }
+        clock_gettime(CLOCK_MONOTONIC, &b);
+        ns = ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / n;
+        if (ns < best) best = ns;
+    }
+    printf("%.4f %ld %.17g\n", best, n, sink);
+    return 0;
+}
+"""
+
+
+def _c_cost(est, dataset, raw, sig, work: Path, name: str, repeat: int):
+    """ns per sample of the exported C (cc -O2, best of ``repeat`` passes over the trial) and its max deviation
+    from the batch estimate (of range); None when there is no C compiler."""
+    cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if cc is None:
+        return None
+    from selfsense.sensing.export_c import export_c
+
+    od = work / name
+    od.mkdir(parents=True, exist_ok=True)
+    model = od / "model.json"
+    model.write_text(json.dumps(est.to_dict()))
+    dt = float(np.median(np.diff(raw["t"].to_numpy())))
+    _, c = export_c(model, dataset, od, dt=dt)
+    (od / "bench.c").write_text(C_BENCH_DRIVER)
+    (od / "check.c").write_text(C_BENCH_DRIVER.replace('printf("%.4f %ld %.17g\\n", best, n, sink);', "")
+                                .replace("sink += dx + f;", 'sink += dx + f; if (rep == 0) printf("%.17g,%.17g\\n", dx, f);'))
+    for drv in ("bench", "check"):
+        subprocess.run([cc, "-std=c99", "-O2", "-o", str(od / drv), str(od / f"{drv}.c"), str(c), "-I", str(od), "-lm"],
+                       check=True, capture_output=True)
+    inp = "".join(f"{u!r},{v!r},{int(r)}\n" for u, v, r in raw[["u_cmd", "v_shunt", "relay"]].itertuples(index=False))
+    out = subprocess.run([str(od / "bench"), str(max(repeat, 5))], input=inp, capture_output=True, text=True, check=True)
+    ns = float(out.stdout.split()[0])
+    chk = subprocess.run([str(od / "check"), "1"], input=inp, capture_output=True, text=True, check=True)
+    got = np.array([[float(x) for x in line.split(",")] for line in chk.stdout.split()])
+    b = est.estimate(sig)
+    err = max(float(np.max(np.abs(got[:, j] - b[col].to_numpy())) / max(np.ptp(b[col].to_numpy()), 1e-300))
+              for j, col in enumerate(("dx_hat", "f_hat")))
+    return {"c_ns": ns, "c_err": err}
+
+
 def _stream_costs(est, raw, sig, repeat):
     """us per sample of SelfSensingStream in blocks of 1 (step), 100 and the whole trial; max |stream - batch| of
     range over dx and f."""
@@ -298,7 +359,9 @@ def bench_stream_kinds(quick):
                 c0 = meta.index[(meta["role"] == "calibration") & (meta["tip"] == "free")][0]
                 est.hysteresis_ = LinearH().fit(sigs[c0]["q"].to_numpy(), sigs[c0]["V"].to_numpy(),
                                                 float(np.median(np.diff(sigs[c0]["t"].to_numpy()))))
-            rows.append({"label": label, "dataset": "sample", "trial": val, **_stream_costs(est, raw, sigs[val], repeat)})
+            row = {"label": label, "dataset": "sample", "trial": val, **_stream_costs(est, raw, sigs[val], repeat)}
+            row.update(_c_cost(est, d, raw, sigs[val], Path(td) / "c", label.split(" ")[0], repeat) or {})
+            rows.append(row)
         # the default model of the pipeline on the bundled virtual tweezer (config.yaml's calibration keys)
         d = ROOT / "data" / "raw" / "tweezer_sim"
         meta = sio.load_trials(d).set_index("trial")
@@ -311,8 +374,10 @@ def bench_stream_kinds(quick):
                          "note": "the default adopts the offset-drift member here: estimated in batch"})
         else:
             raw = sio.read_log(d / meta.loc[val, "file"])
-            rows.append({"label": "default (h_model: auto)", "dataset": "tweezer_sim", "trial": val,
-                         **_stream_costs(est, raw, sigs[val], repeat)})
+            row = {"label": "default (h_model: auto)", "dataset": "tweezer_sim", "trial": val,
+                   **_stream_costs(est, raw, sigs[val], repeat)}
+            row.update(_c_cost(est, d, raw, sigs[val], Path(td) / "c", "default", repeat) or {})
+            rows.append(row)
     return rows
 
 
@@ -559,6 +624,10 @@ def render(res, quick, argv, total):
         L.append(f"| b | stream, default model on tweezer_sim ({dft['model']}), blocks of 100 samples | "
                  f"{dft['us_100']:.2f} us/sample (whole trial {dft['us_whole']:.2f}, step {dft['us_step']:.1f}) | "
                  f"| | <= 1 us | {verdict(dft['us_100'] <= 1.0)} |")
+        if "c_ns" in dft:
+            L.append(f"| b | generated C (`selfsense export-c`, cc -O2), default model on tweezer_sim | "
+                     f"{dft['c_ns'] / 1e3:.3f} us/sample (max err {dft['c_err']:.0e} of range) | | | <= 0.2 us | "
+                     f"{verdict(dft['c_ns'] <= 200)} |")
     L.append(f"| b | stream block `process()` | {fmt_rate(b['rate_block'])} samples/s | "
              f"{fmt_rate(b['rate_batch'])} samples/s (batch pipeline) | {b['rate_block'] / b['rate_batch']:.1f}x | "
              f">= 1e6 /s | {verdict(b['rate_block'] >= 1e6)} |")
@@ -606,14 +675,16 @@ def render(res, quick, argv, total):
           "Per model kind (fitted on data/raw/sample with `drift: off`; streamed over one validation trial) and the "
           "pipeline's default model on data/raw/tweezer_sim (config.yaml), us per sample by block size, and the "
           "stream's max deviation from the batch estimate (of range, dx and f):", "",
-          "| model | dataset, trial | samples | step (block of 1) | blocks of 100 | whole trial | stream vs batch |",
-          "|---|---|---|---|---|---|---|"]
+          "| model | dataset, trial | samples | Python step (block of 1), us | Python blocks of 100, us | "
+          "Python whole trial, us | stream vs batch | generated C (cc -O2), us | C vs batch |",
+          "|---|---|---|---|---|---|---|---|---|"]
     for k in b.get("kinds", []):
+        cc = (f"{k['c_ns'] / 1e3:.3f} | {k['c_err']:.1e}" if "c_ns" in k else "no C compiler | ")
         if "us_100" in k:
             L.append(f"| {k['label']}: {k['model']} | {k['dataset']}, {k['trial']} | {k['n']:,} | {k['us_step']:.1f} | "
-                     f"{k['us_100']:.2f} | {k['us_whole']:.2f} | {k['err']:.1e} |")
+                     f"{k['us_100']:.2f} | {k['us_whole']:.2f} | {k['err']:.1e} | {cc} |")
         else:
-            L.append(f"| {k['label']} | {k['dataset']}, {k['trial']} | | {k['note']} | | | |")
+            L.append(f"| {k['label']} | {k['dataset']}, {k['trial']} | | {k['note']} | | | | | |")
     L += ["",
           "### (c) QP calibration",
           f"fit_modified_pi on {c['N']:,} samples (15 play, 15 superposition, 15 x 4 creep, Clarabel): total "

@@ -248,12 +248,25 @@ class HStream:
             pass
         elif not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"HStream: sample time dt must be > 0 s, got {self.dt!r}")
+        # Kuhnen's operator (registry modified_pi, thesis GaugedH): the hysteresis kernel called on state arrays held
+        # here (ModifiedPI.apply's own state objects cost more than the operator on a one-sample block)
+        self._op = None
+        if self.kind == "modified_pi" or (self.kind == "GaugedH" and type(self._inner).__name__ == "ModifiedPI"):
+            op = model.inner_ if self.kind == "modified_pi" else self._inner
+            if self.kind == "modified_pi" and np.isfinite(self.dt) and self.dt != op.dt:
+                op = op.with_dt(self.dt)
+            self._op = op
+            self._sign, self._c = ((model.sign_, model.c_) if self.kind == "modified_pi" else (model.sign, model.c))
         self.reset()
 
     def reset(self) -> None:
         """Back to the relaxed state (the relay's known initial state, thesis sec. 5.1.1)."""
         m = self.model
-        if self.kind in ("GaugedH", "RIModel"):
+        if self._op is not None:
+            op = self._op
+            self._state = {"p": op.z_H0.copy(), "c": np.ascontiguousarray(op.Z_K0.reshape(-1)).copy(),
+                           "xl": np.array([np.nan])}
+        elif self.kind in ("GaugedH", "RIModel"):
             self._state = {"op": None}
         elif self.kind == "RICreepH":
             self._state = {"ri": None, "creep": {"c": np.zeros((len(m.r_K), len(m.a_K))), "x": None}}
@@ -269,6 +282,15 @@ class HStream:
     def process(self, Q) -> np.ndarray:
         Q = np.ascontiguousarray(Q, dtype=float)
         m, st = self.model, self._state
+        if self._op is not None:   # = ModifiedPI.apply on the held state (same kernel, same bits)
+            from selfsense.hysteresis import _kernels
+
+            op = self._op
+            y = np.empty(Q.shape[0])
+            s0, rSp, wSp, rSn, wSn = op._sup
+            _kernels.gamma_kernel(Q, op.r_H, op.w_H, st["p"], op._rC, op._wC, op._gC, st["c"], st["xl"], op.offset, s0,
+                                  rSp, wSp, rSn, wSn, y)
+            return self._sign * (y - self._c * Q)
         if self.kind == "GaugedH":
             if type(self._inner).__name__ == "RIModel":
                 g, st["op"] = self._inner.apply(np.maximum(Q, 0.0), st["op"])
@@ -484,6 +506,8 @@ class SelfSensingStream:
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit))], dtype=float)
         self.h = HStream(estimator.hysteresis_, self.dt)
         self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
+        self._buf = {k: np.zeros(1) for k in ("u", "v", "r", "t", "q", "V", "qm", "ts", "dx", "f")}
+        self._buf["aux"] = np.empty((0, 4))
         self._SF0 = np.zeros(_NS_FRONT)
         if not isinstance(offset, str):
             self._SF0[_OFF_MODE] = _OFF_FIXED
@@ -568,9 +592,26 @@ class SelfSensingStream:
         (or the constructor's dt). Returns (dx_hat [m], f_hat [N])."""
         if t is None and self.dt is None:
             raise ValueError("step: pass t or construct the stream with dt")
-        dx, f = self.process(np.array([float(u_cmd)]), np.array([float(v_shunt)]), np.array([float(relay)]),
-                             None if t is None else np.array([float(t)]))
-        return float(dx[0]), float(f[0])
+        if self.drift is not None:
+            dx, f = self.process(np.array([float(u_cmd)]), np.array([float(v_shunt)]), np.array([float(relay)]),
+                                 None if t is None else np.array([float(t)]))
+            return float(dx[0]), float(f[0])
+        # the block path for one sample, on buffers allocated once (the same kernels and the same H stream)
+        b = self._buf
+        b["u"][0], b["v"][0], b["r"][0] = u_cmd, v_shunt, relay
+        if t is None:
+            use_t, dt = False, self.dt
+        else:
+            b["t"][0] = t
+            use_t, dt = True, 0.0
+        SF = self._SF.copy()
+        st, k = front_kernel(self._PF, SF, b["t"], b["u"], b["v"], b["r"], dt, use_t, b["q"], b["V"], b["qm"], b["ts"])
+        if st:
+            self._raise(int(st), f"sample {self.n_samples}")
+        VH = self.h.process(b["q"])
+        back_kernel(self._PB, self._SB, b["u"], b["r"], b["q"], b["V"], VH, b["dx"], b["f"], b["aux"])
+        self._SF = SF
+        return float(b["dx"][0]), float(b["f"][0])
 
     def process(self, u_cmd, v_shunt, relay=None, t=None, *, full: bool = False):
         """A block of raw samples (1-D arrays of equal length; relay default 0). Returns (dx_hat, f_hat) arrays,
