@@ -48,7 +48,8 @@ FAMILY = {"preisach": "Preisach", "gpi": "generalised PI", "jiles_atherton": "Ji
           "bouc_wen": "Bouc-Wen"}
 BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
 #: the pages that hold figure blocks
-PAGES = ["README.md", "docs/benchmarks.md", "docs/cross_device.md", "docs/gap.md", "docs/hysteresis.md"]
+PAGES = ["README.md", "docs/benchmarks.md", "docs/cross_device.md", "docs/gap.md", "docs/hysteresis.md",
+         "docs/realtime.md"]
 
 
 class Fig:
@@ -225,9 +226,28 @@ def external_figures() -> list[Fig]:
     return out
 
 
+def realtime_figures() -> list[Fig]:
+    """Per-sample cost of the stream (Python) and of the generated C for every model kind, from RESULTS.json (b)."""
+    r = _read_json("benchmarks/RESULTS.json")
+    src, cmd, date = "benchmarks/RESULTS.md", r.get("command", COMMANDS["results"]), r["machine"]["date"][:10]
+    out = []
+    for k in r["b"].get("kinds", []):
+        if "us_100" not in k:
+            continue
+        default = k["label"].startswith("default")
+        c = f"; C {k['c_ns'] / 1e3:.3f} us" if "c_ns" in k else "; C not measured (no compiler)"
+        out.append(Fig(f"{k['label']} ({k['model']}) on `{k['dataset']}`: Python stream in blocks of 100 samples; "
+                       "generated C", f"{k['us_100']:.2f} us{c}",
+                       "<= 1 us Python, <= 0.2 us C" if default else "",
+                       _met(k["us_100"] <= 1.0 and k.get("c_ns", 1e9) <= 200) if default else "measured",
+                       src, cmd, date))
+    return out
+
+
 def collect() -> dict[str, list[Fig]]:
     res = results_figures()
-    return {"speed": res["speed"], "bundled": res["bundled"], "cross_device": cross_device_figures(),
+    return {"speed": res["speed"], "bundled": res["bundled"], "realtime": realtime_figures(),
+            "cross_device": cross_device_figures(),
             "stage_chain": stage_chain_figures(), "gap": gap_figures(), "external": external_figures()}
 
 
@@ -236,6 +256,7 @@ TITLES = {"cross_device": "Accuracy across virtual devices (thesis Table 3 per t
           "bundled": "The bundled virtual tweezer `tweezer_sim`",
           "gap": "Sim-to-real gap diagnostic (blind campaigns)",
           "external": "Hysteresis models on real measurements made by others",
+          "realtime": "Real time: cost per sample of the stream and of the generated C, per model kind",
           "speed": "Speed and memory"}
 HEAD = "| figure | measured | target | status |\n|---|---|---|---|"
 HEAD_SRC = "| figure | measured | target | status | source | command | date |\n|---|---|---|---|---|---|---|"
