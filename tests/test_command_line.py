@@ -45,7 +45,8 @@ def _collect_parsers(monkeypatch) -> list[argparse.ArgumentParser]:
 
 @pytest.mark.parametrize("argv", [
     ["init", "--help"], ["validate", "--help"], ["simulate", "--help"], ["estimate", "--help"],
-    ["export", "--help"], ["stream", "--help"], ["gap", "diagnose", "--help"], ["gap", "blind", "--help"],
+    ["export", "--help"], ["export-c", "--help"], ["stream", "--help"], ["gap", "diagnose", "--help"],
+    ["gap", "blind", "--help"],
     ["gap", "blind-calibrate", "--help"],
     ["ri", "compare-slac", "--help"], ["ri", "validate-table", "--help"], ["fit-external", "--help"],
 ])
