@@ -397,6 +397,13 @@ def test_selfsense_stream_errors_name_the_line_and_the_model(fitted, tmp_path, c
     assert selfsense_main(["stream", "--model", str(m2), "--dataset", str(d), "--input", str(log)]) == 2
     err = capsys.readouterr().err
     assert "drifting.json" in err and "offset-drift member" in err
+    # ... and streams with --drift causal (the drift fitted on the rest segments seen so far)
+    ok = tmp_path / "ok.csv"
+    ok.write_text("t,u_cmd,v_shunt,relay\n0.0,0.0,0.001,1\n0.001,0.0,0.001,1\n0.002,0.5,0.002,0\n")
+    assert selfsense_main(["stream", "--model", str(m2), "--dataset", str(d), "--input", str(ok),
+                           "--drift", "causal"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[0] == "t,dx_hat,f_hat" and len(out) == 4
 
 
 def test_selfsense_stream_follows_a_file_that_is_still_being_written(fitted, tmp_path):

@@ -9,6 +9,10 @@ the batch pipeline ``stages.ingest`` -> ``SelfSensingEstimator.estimate`` on the
 as a row group of the output (``pyarrow.parquet.ParquetWriter`` into a temp file, ``os.replace`` at the end: a
 failure leaves no partial output). Memory is bounded by the chunk size, not the log length.
 
+A model with the offset-drift member (a charge drift fitted over the rest segments of the whole trial) is estimated
+in batch, exactly as the pipeline does, with the whole log in memory, unless ``--drift causal`` streams it with the
+drift fitted on the rest segments seen so far (``SelfSensingStream(drift="causal")``).
+
 Output columns: ``t`` [s], ``dx_hat`` [m], ``f_hat`` [N]; with ``--full`` also ``q`` [C], ``V`` [V], ``V_H`` [V],
 ``V_p`` [V], ``dx_raw`` [m], ``f_raw`` [N]. Log columns used: ``t, u_cmd, v_shunt`` and ``relay`` (optional with
 ``--offset VOLTS``), renamed/scaled by the dataset's ``rig.yaml: channel_map`` if it has one.
@@ -34,6 +38,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output .parquet")
     p.add_argument("--chunk", type=int, default=1_000_000, help="samples per chunk (default 1000000)")
     p.add_argument("--full", action="store_true", help="also write q, V, V_H, V_p, dx_raw, f_raw")
+    p.add_argument("--drift", choices=("batch", "causal"), default="batch",
+                   help="a model with the offset-drift member: estimate it in batch, exactly the pipeline (default; "
+                        "the whole log in memory), or stream it with the drift fitted on the rest segments seen so "
+                        "far (causal; memory bounded)")
     p.add_argument("--offset", default="relay",
                    help="in-amp offset of V_s: 'relay' (mean over the first shorted segment, default) or volts")
     return p
@@ -123,7 +131,7 @@ def _log_chunks(log: str | Path, rig, chunk: int):
 
 def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: str | Path,
                  chunk: int = 1_000_000, full: bool = False, offset: str | float = "relay",
-                 progress: bool | None = None) -> int:
+                 progress: bool | None = None, drift: str = "batch") -> int:
     """Stream ``log`` through the fitted model into ``out`` chunk by chunk; returns the number of samples."""
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -137,7 +145,9 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     # --out must not resolve to (or lie in) an input or a raw dataset, whatever the folder names
     sio.check_output_file(out, [model, dataset, log])
     rig = sio.load_rig(dataset)
-    if not streamable(model):
+    if drift not in ("batch", "causal"):
+        raise ValueError(f"--drift must be 'batch' or 'causal', got {drift!r}")
+    if not streamable(model) and drift == "batch":
         return _estimate_batch(model, rig, log, out, chunk, full, offset)
     n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
     if not has_relay and offset == "relay":
@@ -148,7 +158,8 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     if first is not None and len(first["t"]) > 1:
         dt = float(np.median(np.diff(first["t"])))
         dt = dt if dt > 0 else None
-    stream = SelfSensingStream.from_json(model, rig, offset=offset, dt=dt)
+    stream = SelfSensingStream.from_json(model, rig, offset=offset, dt=dt,
+                                         drift="causal" if drift == "causal" else "refuse")
     chunks = _chain(first, chunks)
 
     out_cols = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
@@ -238,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
     # StreamError, ContractError, missing files, bad columns: one line per problem and exit 2 (selfsense.cli)
-    n = estimate_log(args.model, args.dataset, args.log, args.out, chunk=args.chunk, full=args.full, offset=offset)
+    n = estimate_log(args.model, args.dataset, args.log, args.out, chunk=args.chunk, full=args.full, offset=offset,
+                     drift=args.drift)
     print(f"selfsense estimate: {n} samples -> {args.out}", file=sys.stderr)
     return 0
 
