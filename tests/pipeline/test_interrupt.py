@@ -34,8 +34,11 @@ def _run(workdir: Path, **kw):
 def test_interrupted_run_resumes_with_a_plain_run(tmp_path):
     wd = _workdir(tmp_path / "a")
     env = dict(os.environ, MPLBACKEND="Agg")
+    # SIGINT at its default in the child, as under a terminal (a runner started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and Python then installs no KeyboardInterrupt handler)
     proc = subprocess.Popen([sys.executable, "-m", "selfsense", "run", "--cores", "2", "--quiet"], cwd=wd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     signals = wd / "results" / "sample" / "signals"
     deadline = time.time() + 300
     while time.time() < deadline and not (signals.exists() and any(signals.glob("*.parquet"))):

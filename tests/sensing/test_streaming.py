@@ -419,9 +419,11 @@ def test_selfsense_stream_follows_a_file_that_is_still_being_written(fitted, tmp
              .itertuples(index=False)]
     log = tmp_path / "growing.csv"
     log.write_text("t,u_cmd,v_shunt,relay\n" + "".join(lines[:300]))
+    # SIGINT at its default in the child, as under a terminal: a test runner started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and Python then installs no KeyboardInterrupt handler
     proc = subprocess.Popen([sys.executable, "-m", "selfsense", "stream", "--model", str(model), "--dataset", str(d),
                              "--input", str(log), "--follow"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, bufsize=1)
+                            text=True, bufsize=1, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     got = [proc.stdout.readline() for _ in range(301)]          # header + the 300 samples already there
     with log.open("a") as fh:                                   # the DAQ program writes on
         fh.write("".join(lines[300:]))
