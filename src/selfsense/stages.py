@@ -243,7 +243,10 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
 
     ``model_json`` / ``estimate_paths``: the pipeline's fitted model and its estimates. A combination whose
     configuration is the pipeline model's is not fitted nor estimated again: its row is scored on the pipeline's
-    estimates (the same numbers, without refitting the model selection)."""
+    estimates (the same numbers, without refitting the model selection). The selected model's other calibration mode
+    refits the H form the pipeline's blocked CV selected (with the straight line it must beat) in that mode's gauge,
+    instead of repeating the whole selection: the gauges differ by a term linear in Q, which every linear-in-parameter
+    candidate absorbs in its unpenalised linear column."""
     from selfsense.report import tables
 
     rig = sio.load_rig(dataset_dir)
@@ -278,7 +281,16 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                 ests[(h_model, ident, mode)] = pipeline
                 reused = (h_model, ident, mode)
                 continue
-            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig).fit(sigs, meta)
+            cands = ()
+            if pipeline is not None and h_model == "auto" and pipeline.config.h_model == "auto":
+                # the other calibration mode of the selected model: the H form the pipeline's blocked CV selected
+                # (beside the straight line it must beat), refitted in this mode's gauge -- not a second selection
+                chosen = next((r for r in pipeline.fit_report_.get("hysteresis", {}).get("selection") or []
+                               if r.get("selected")), None)
+                if chosen is not None:
+                    cands = (("linear", {}),) + (((chosen["kind"], dict(chosen["params"])),)
+                                                 if chosen["kind"] != "linear" else ())
+            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig, h_candidates=cands).fit(sigs, meta)
         pts: dict = {c: [] for c in combos}
         left_out = {}
         for t in sorted(signal_paths):

@@ -7,7 +7,8 @@ import pytest
 from selfsense.hysteresis.models import (REGISTRY, DegenerateFitError, LinearH, PlayH, PreisachH, h_from_dict,
                                          make_model)
 from selfsense.hysteresis.models._grid import preisach_grid_features, relaxation_bank
-from selfsense.hysteresis.models.select import blocked_folds, select_h_model
+from selfsense.hysteresis.models import qr_reduce, ridge_lstsq
+from selfsense.hysteresis.models.select import _cv_linear, blocked_folds, select_h_model, stacked_design
 from selfsense.hysteresis.operators import play_operator
 
 DT = 1e-3
@@ -142,6 +143,36 @@ def test_blocked_folds_partition_every_segment():
     assert np.all(np.sum(rot, axis=0) == 1)
     assert rot[0][:3].all() and rot[0][12:14].all() and not rot[0][10]     # block 0 of seg 0, block 1 of seg 1
     assert rot[2][10:12].all() and not rot[2][:3].any()                     # the first block of seg 1 is in fold 2
+
+
+@pytest.mark.parametrize("model", [PreisachH(n_grid=6, n_play=3, ridge=1e-3),
+                                   PlayH(n_play=6, ridge=1e-4, nonneg=True)], ids=lambda m: m.label())
+def test_factored_blocked_cv_equals_the_fit_on_the_training_rows(model):
+    """The blocked CV solves each fold on the stacked QR factors of its training blocks (qr_reduce): the fold errors
+    equal those of the ridge fit on the training rows themselves, penalty, column scaling and bounds included."""
+    rng = np.random.default_rng(3)
+    qs = [_drive(seed=11), _drive(n=4500, seed=12)]
+    u = [q / QREF for q in qs]
+    ys = [30 * x + 4 * play_operator(x, [0.2])[:, 0] + 0.05 * rng.standard_normal(len(x)) for x in u]
+    extras = [np.column_stack([np.ones(len(q)) * i, (np.arange(len(q)) * DT) ** 2]) for i, q in enumerate(qs)]
+    folds = blocked_folds([len(q) for q in qs], 5, rotate=True)
+    fast = _cv_linear(model, qs, ys, DT, extras, folds, 2)
+    X, y, pen = stacked_design(model, qs, ys, DT, extras, 1)
+    keep = np.zeros(len(y), bool)
+    keep[::2] = True
+    slow = []
+    for held in folds:
+        w = ridge_lstsq(X[keep & ~held], y[keep & ~held], pen, model.ridge, lower=model._bounds(X.shape[1]))
+        slow.append(float(np.sqrt(np.mean((X[keep & held] @ w - y[keep & held]) ** 2))))
+    np.testing.assert_allclose(fast, slow, rtol=1e-7)
+    # and the factor is an orthogonal reduction: residual norms differ from those of the rows by one constant
+    R, n, css = qr_reduce(X[:500], y[:500])
+    assert n == 500 and np.allclose(css, np.sum(X[:500] ** 2, axis=0))
+    w1, w2 = rng.standard_normal((2, X.shape[1]))
+    rows = [np.sum((X[:500] @ w - y[:500]) ** 2) for w in (w1, w2)]
+    red = [np.sum((R[:, :-1] @ w - R[:, -1]) ** 2) for w in (w1, w2)]
+    assert rows[0] - rows[1] == pytest.approx(red[0] - red[1], rel=1e-8)
+    assert red[0] <= rows[0] * (1 + 1e-12)
 
 
 def test_selection_prefers_hysteresis_and_reports_baselines():

@@ -81,6 +81,16 @@ def test_auto_selection_in_the_pipeline_equals_the_public_selection():
                              free=[free[i] for i in idx])
         assert sel.model.label() == est.hysteresis_.label()
         np.testing.assert_allclose(sel.model.predict(qs[0]), est.hysteresis_.predict(qs[0]), rtol=0, atol=1e-9)
+        # h_candidates (compare_modes' second calibration mode): the straight line and the selected form only give
+        # the same model, and a selection table of just those two
+        chosen = next(r for r in est.fit_report_["hysteresis"]["selection"] if r["selected"])
+        assert chosen["kind"] != "linear"
+        est2 = SelfSensingEstimator(config=SensingConfig(drift="off"), rig=rig,
+                                    h_candidates=(("linear", {}), (chosen["kind"], chosen["params"]))
+                                    ).fit_hysteresis(sigs, meta)
+        assert [r["kind"] for r in est2.fit_report_["hysteresis"]["selection"]] == ["linear", chosen["kind"]]
+        assert est2.hysteresis_.label() == est.hysteresis_.label()
+        np.testing.assert_allclose(est2.hysteresis_.predict(qs[0]), est.hysteresis_.predict(qs[0]), rtol=0, atol=1e-9)
 
 
 def test_leakage_compensation_recovers_an_injected_leakage():

@@ -405,6 +405,10 @@ class SelfSensingEstimator:
     #: "offset_drift": "auto"|"on"|"off"}``; "auto" (the default) lets the calibration data and the reference-free
     #: hold evidence decide (``drift: auto``); the gap diagnostic forces a member to score the chain with it
     members: Mapping[str, str] = field(default_factory=dict)
+    #: the H(q) candidates ``((kind, params), ...)`` of the blocked-CV selection; empty (the default): those of the
+    #: configured ``h_model``. ``compare_modes`` passes the straight line and the pipeline's selected candidate, so that
+    #: a second calibration mode refits the selected form instead of repeating the whole selection
+    h_candidates: tuple = ()
 
     # fitted
     hysteresis_: Any = field(default=None, init=False, repr=False)
@@ -695,7 +699,7 @@ class SelfSensingEstimator:
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
         if not free_mask.any():
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
-        sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=_candidates_for(cfg.h_model, cfg),
+        sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg),
                              n_blocks=int(cfg.cv_blocks), trial_names=names)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":

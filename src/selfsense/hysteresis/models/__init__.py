@@ -241,12 +241,22 @@ class LinearParamH:
         return f"{self.kind}({extra}{', ' if extra else ''}ridge={self.ridge:g}{', creep' if self.creep else ''})"
 
 
-def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float, lower=None) -> np.ndarray:
+def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float, lower=None, *,
+                reduced: tuple[int, np.ndarray] | None = None) -> np.ndarray:
     """``argmin |X w - y|^2 + ridge N |D w|^2`` with ``D`` selecting the penalised columns of the column-scaled X,
     solved by a pivoted-QR least-squares solve of the augmented matrix (well-conditioned factor, no normal
-    equations)."""
-    N = X.shape[0]
-    s = np.sqrt(np.mean(X**2, axis=0))
+    equations).
+
+    ``reduced = (N, column sums of squares)``: ``X, y`` are not the rows themselves but an orthogonal reduction of
+    them (``R`` and ``Q^T y`` of a QR factorisation of ``[X_rows | y_rows]``, possibly stacked over row blocks,
+    see :func:`qr_reduce`), which has the same minimiser; ``N`` and the column sums of squares are those of the
+    rows, so that the ridge weight and the column scaling are the same as for the rows."""
+    if reduced is None:
+        N = X.shape[0]
+        s = np.sqrt(np.mean(X**2, axis=0))
+    else:
+        N = int(reduced[0])
+        s = np.sqrt(np.asarray(reduced[1], float) / N)
     s[~(s > 0)] = 1.0
     Xs = X / s
     idx = np.flatnonzero(penalised)
@@ -269,6 +279,17 @@ def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: floa
     # several times faster, and never forms X^T X
     w, *_ = lstsq(A, b, lapack_driver="gelsy", check_finite=False)
     return w / s
+
+
+def qr_reduce(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    """Orthogonal reduction of the least-squares rows ``[X | y]``: ``(R, n, column sums of squares of X)`` with
+    ``R`` the triangular factor of ``[X | y]`` (at most ``p + 1`` rows). ``|X w - y|^2 = |R[:, :p] w - R[:, p]|^2 +
+    const`` for every ``w``, and the factors of disjoint row blocks stack: the blocked CV of
+    :func:`selfsense.hysteresis.models.select.cv_candidate` factors each held-out block once and solves every fold on
+    the stacked factors of its training blocks (the same minimiser as on the rows, a few times faster)."""
+    A = np.column_stack([X, y])
+    R = np.linalg.qr(A, mode="r") if A.shape[0] else np.zeros((0, A.shape[1]))
+    return R, int(X.shape[0]), np.einsum("ij,ij->j", X, X)
 
 
 class LinearH(LinearParamH):

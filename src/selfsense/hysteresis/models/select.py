@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import DegenerateFitError, LinearParamH, fit_stride, make_model, ridge_lstsq
+from . import DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq
 
 log = logging.getLogger(__name__)
 
@@ -113,9 +113,21 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin):
     keep[::thin] = True
     rms = []
     lower = model._bounds(X.shape[1])
-    for held in folds:
-        tr = keep & ~held
-        w = ridge_lstsq(X[tr], y[tr], pen, model.ridge, lower=lower)
+    held_all = np.asarray(folds, bool)
+    # folds that partition the rows (blocked folds do): each held-out block is factored once (qr_reduce) and every
+    # fold is solved on the stacked factors of its training blocks -- the same minimiser as on the training rows
+    blocks = ([qr_reduce(X[keep & h], y[keep & h]) for h in held_all]
+              if held_all.ndim == 2 and np.all(held_all.sum(axis=0) == 1) else None)
+    p = X.shape[1]
+    for f, held in enumerate(folds):
+        if blocks is None:
+            tr = keep & ~held
+            w = ridge_lstsq(X[tr], y[tr], pen, model.ridge, lower=lower)
+        else:
+            train = [b for i, b in enumerate(blocks) if i != f]
+            R = np.vstack([b[0] for b in train])
+            w = ridge_lstsq(R[:, :p], R[:, p], pen, model.ridge, lower=lower,
+                            reduced=(sum(b[1] for b in train), np.sum([b[2] for b in train], axis=0)))
         ev = held & keep
         rms.append(float(np.sqrt(np.mean((X[ev] @ w - y[ev]) ** 2))))
     return rms
