@@ -102,6 +102,11 @@ def _family_params(family: str, rng) -> tuple[list, list]:
         a = rng.uniform(0.1, 0.3)
         return [], [1.0, a, rng.uniform(0.05, 0.2), rng.uniform(0.1, 0.5), rng.uniform(0.0, 0.3) * a,
                     rng.uniform(0.2, 0.6), 1.0]
+    if family == "rate_kp":
+        # hp = [w, m, s1, s2, c, r0]: density centre and spread over the hysteron centres, decay over their
+        # half-widths, loop widening per decade of |du/dt| (7-18 %), reference rate 1 /s (a 0.3 Hz sine of full stroke)
+        return [], [1.0, rng.uniform(0.3, 0.7), rng.uniform(0.15, 0.4), rng.uniform(0.05, 0.2),
+                    rng.uniform(0.07, 0.18), 1.0]
     raise ValueError(f"unknown device family {family!r}; expected one of {FAMILIES}")
 
 
@@ -154,6 +159,8 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
         hp[4] *= scale
     elif family == "gpi":
         hp[3] *= scale
+    elif family == "rate_kp":
+        hp[0] *= scale
     else:
         hp[6] *= scale
     base = load_device()

@@ -184,8 +184,8 @@ def run_kernel(u_cmd, relay, dT, P, comps, hp, out):
     else:
         ydm = truth_init(fam, hs, hp)
         if preload > 0.0:
-            truth_commit(fam, preload, hs, hp)
-            truth_commit(fam, 0.0, hs, hp)
+            truth_commit(fam, preload, hs, hp, 0.0)
+            truth_commit(fam, 0.0, hs, hp, 0.0)
     # states
     Vc = 0.0
     q = 0.0          # actuator charge
@@ -270,7 +270,7 @@ def run_kernel(u_cmd, relay, dT, P, comps, hp, out):
                         _fill_l(u, comps, lu)
                         y = preisach_eval(u, lu, tp, ty, tl, iv, fv, cl, comps)
                     else:
-                        y = truth_eval(fam, u, hs, hp)
+                        y = truth_eval(fam, u, hs, hp, dts)
                     vh = (hlin * u - hsign * (y - ydm)) * stress
                     for j in range(3):
                         vh += ecc[j] * (1.0 - ecb[j]) * (u - z[j])
@@ -313,7 +313,7 @@ def run_kernel(u_cmd, relay, dT, P, comps, hp, out):
             if fam == 0:
                 preisach_commit(u, lu, tp, ty, tl, iv, fv, cl, comps)
             else:
-                truth_commit(fam, u, hs, hp)
+                truth_commit(fam, u, hs, hp, dts)
             for j in range(3):
                 z[j] += (u - z[j]) * ecb[j]
             xn = x0 + x1 * dn

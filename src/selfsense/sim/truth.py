@@ -26,6 +26,14 @@ Family codes (``FAMILIES``):
    ``M_an = M_s (coth(He / a) - a / He)``, irreversible part ``dM_irr/dH = (M_an - M_irr) / (k delta - a_c
    (M_an - M_irr))`` (zero when it would move against the anhysteretic), reversible part
    ``M = c M_an + (1 - c) M_irr``, ``y = w M``; loops that steepen towards the coercive field.
+4. ``rate_kp``: rate-dependent Krasnosel'skii-Pokrovskii operator: a grid of 6 x 4 KP hysterons (Krasnosel'skii &
+   Pokrovskii 1989; ramp hysterons, each the state ``z`` in [-1, 1] clamped between an ascending ramp that starts at
+   ``alpha`` and a descending ramp that ends at ``beta``, ramp width 0.8 (alpha - beta)) with centres
+   ``(alpha + beta) / 2`` in 0.05-0.95 and half-widths 0.02-0.25, density ``exp(-(centre - m)^2 / (2 s1^2))
+   exp(-half-width / s2)``, ``y = w sum p z / sum p``. The half-widths grow with the input rate,
+   ``x (1 + c log10(1 + |du/dt| / r0))`` (a loop that widens by ``c`` per decade of rate, as PZT stacks do); when
+   the rate falls (a hold), the hysterons that the narrower thresholds no longer hold relax towards them. It is a
+   Preisach-class operator only at a fixed rate: none of the estimator's candidates has this rate dependence.
 
 State vectors (``hs``, length ``NSTATE``) and parameter vectors (``hp``, length ``NPAR``) are plain float arrays
 so that the kernel stays one compiled function; their layouts are documented per family below.
@@ -39,7 +47,7 @@ from numba import njit
 
 __all__ = ["FAMILIES", "NSTATE", "NPAR", "family_code", "truth_init", "truth_eval", "truth_commit", "truth_path"]
 
-FAMILIES = ("preisach", "bouc_wen", "gpi", "jiles_atherton")
+FAMILIES = ("preisach", "bouc_wen", "gpi", "jiles_atherton", "rate_kp")
 NSTATE = 40
 NPAR = 40
 _DU = 2e-3   # largest input step of one explicit integration step of the differential families
@@ -139,10 +147,46 @@ def _ja_step(u, hs, hp):
     return mi, M
 
 
+# ---- 4: rate-dependent KP.  hp = [w, m, s1, s2, c, r0];  hs = [u, z_0..z_(KP_N-1)] ------------------------------
+KP_CENTRES = 6
+KP_WIDTHS = 4
+KP_N = KP_CENTRES * KP_WIDTHS
+
+
+@njit(cache=True)
+def _kp_out(u, dt, hs, hp, store):
+    """Output of the KP grid at input ``u`` reached from ``hs[0]`` in ``dt`` seconds (``dt <= 0``: at rest, the
+    rate-independent thresholds); with ``store`` the hysteron states are updated."""
+    widen = 1.0
+    if dt > 0.0:
+        widen = 1.0 + hp[4] * math.log10(1.0 + abs(u - hs[0]) / dt / hp[5])
+    num = 0.0
+    den = 0.0
+    for i in range(KP_CENTRES):
+        c = 0.05 + 0.9 * i / (KP_CENTRES - 1)
+        for j in range(KP_WIDTHS):
+            h0 = 0.02 + 0.23 * j / (KP_WIDTHS - 1)
+            h = h0 * widen
+            a = c + h
+            b = c - h
+            d = 1.6 * h   # ramp width 0.8 (alpha - beta): the ascending ramp stays below the descending one
+            ra = min(max(2.0 * (u - a) / d + 1.0, -1.0), 1.0)
+            rd = min(max(2.0 * (u - b) / d - 1.0, -1.0), 1.0)
+            k = 1 + i * KP_WIDTHS + j
+            z = min(max(hs[k], ra), rd)
+            if store:
+                hs[k] = z
+            p = math.exp(-0.5 * (c - hp[1]) ** 2 / hp[2] ** 2 - h0 / hp[3])
+            num += p * z
+            den += p
+    return hp[0] * num / den
+
+
 # ---- dispatch -----------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def truth_eval(fam, u, hs, hp):
-    """Output y [V] at input u without changing the state."""
+def truth_eval(fam, u, hs, hp, dt):
+    """Output y [V] at input u, reached from the state's input in ``dt`` seconds (the rate-dependent family; ``dt <=
+    0``: at rest), without changing the state."""
     if fam == 1:
         return hp[4] * _bw_step(u, hs, hp)
     if fam == 2:
@@ -150,12 +194,14 @@ def truth_eval(fam, u, hs, hp):
     if fam == 3:
         mi, M = _ja_step(u, hs, hp)
         return hp[6] * M
+    if fam == 4:
+        return _kp_out(u, dt, hs, hp, False)
     return 0.0
 
 
 @njit(cache=True)
-def truth_commit(fam, u, hs, hp):
-    """Move the state to input u; returns y [V]."""
+def truth_commit(fam, u, hs, hp, dt):
+    """Move the state to input u in ``dt`` seconds (see :func:`truth_eval`); returns y [V]."""
     if fam == 1:
         z = _bw_step(u, hs, hp)
         hs[0] = u
@@ -170,6 +216,10 @@ def truth_commit(fam, u, hs, hp):
         hs[0] = u
         hs[1] = mi
         return hp[6] * M
+    if fam == 4:
+        y = _kp_out(u, dt, hs, hp, True)
+        hs[0] = u
+        return y
     return 0.0
 
 
@@ -185,26 +235,31 @@ def truth_init(fam, hs, hp):
         for _ in range(50):
             M = _ja_man(H, M, hp)
         hs[1] = M
-    return truth_eval(fam, 0.0, hs, hp)
+    if fam == 4:
+        for k in range(1, 1 + KP_N):
+            hs[k] = -1.0   # every hysteron down: the relaxed state below all thresholds
+        return _kp_out(0.0, 0.0, hs, hp, True)
+    return truth_eval(fam, 0.0, hs, hp, 0.0)
 
 
 @njit(cache=True)
-def _path(fam, u, hp):
+def _path(fam, u, hp, dt):
     hs = np.zeros(NSTATE)
     truth_init(fam, hs, hp)
     y = np.empty(u.size)
     for i in range(u.size):
-        y[i] = truth_commit(fam, u[i], hs, hp)
+        y[i] = truth_commit(fam, u[i], hs, hp, dt)
     return y
 
 
-def truth_path(family: str, u, hp) -> np.ndarray:
-    """Output y [V] of a non-Preisach family along the input path u from the relaxed state (for tests, docs)."""
+def truth_path(family: str, u, hp, dt: float = 2.5e-3) -> np.ndarray:
+    """Output y [V] of a non-Preisach family along the input path u (one sample every ``dt`` seconds: the rate of
+    the rate-dependent family) from the relaxed state (for tests, docs)."""
     fam = family_code(family)
     if fam == 0:
         raise ValueError("truth_path: use selfsense.sim.preisach.preisach_path for the Preisach family")
     hp = np.zeros(NPAR) if hp is None else _pad(hp)
-    return _path(fam, np.ascontiguousarray(u, dtype=float), hp)
+    return _path(fam, np.ascontiguousarray(u, dtype=float), hp, float(dt))
 
 
 def _pad(hp) -> np.ndarray:
