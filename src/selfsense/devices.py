@@ -35,7 +35,7 @@ PROTOCOLS = ("thesis", "three_trial")
 
 
 def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
-               protocol: str = "three_trial") -> dict:
+               protocol: str = "three_trial", randomise: str = "hysteresis") -> dict:
     """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials; the
     mixed-drive validation trials also on their own)."""
     from selfsense import io as sio
@@ -49,10 +49,11 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
     cfg = dict(config or _default_pipeline_config())
-    sc = draw_device(family, seed, preset)
+    sc = draw_device(family, seed, preset, randomise=randomise)
     if protocol == "thesis":
         sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
+                           "randomise": randomise, **{f"device_{k}": v for k, v in sc.get("randomise", {}).items()},
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0)}
     with tempfile.TemporaryDirectory(prefix="selfsense-device-") as tmp:
@@ -163,14 +164,15 @@ def _config_from(path: str | None) -> dict:
 
 
 def _job(args):
-    family, preset, seed, cfg, out, protocol = args
-    rec = run_device(family, preset, seed, cfg, protocol)
+    family, preset, seed, cfg, out, protocol, randomise = args
+    rec = run_device(family, preset, seed, cfg, protocol, randomise)
     write_record(rec, out)
     return rec
 
 
 def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
-          first_seed: int = 0, progress: bool = True, protocol: str = "three_trial") -> pd.DataFrame:
+          first_seed: int = 0, progress: bool = True, protocol: str = "three_trial",
+          randomise: str = "hysteresis") -> pd.DataFrame:
     """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
     file per device under ``out_dir/records`` (existing records are reused: resumable), then write
     ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``."""
@@ -187,12 +189,13 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
                 p = rec_dir / f"{fam}_{pre}_{seed}.json"
                 if p.exists():
                     rec = json.loads(p.read_text())
-                    if rec.get("protocol", "three_trial") != protocol:
-                        raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}; this "
-                                         f"run asks for {protocol!r}: use another --out folder")
+                    if (rec.get("protocol", "three_trial"), rec.get("randomise", "hysteresis")) != (protocol, randomise):
+                        raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}, "
+                                         f"randomisation {rec.get('randomise', 'hysteresis')!r}; this run asks for "
+                                         f"{protocol!r}, {randomise!r}: use another --out folder")
                     recs.append(rec)
                 else:
-                    todo.append((fam, pre, seed, config, str(p), protocol))
+                    todo.append((fam, pre, seed, config, str(p), protocol, randomise))
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from tqdm import tqdm

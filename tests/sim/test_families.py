@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES, select_h_model
-from selfsense.sim.families import FAMILIES, RANGES, draw_device
+from selfsense.sim.families import DEVICE_RANGES, FAMILIES, RANGES, draw_device
 from selfsense.sim.simulate import simulate_scenario_in_memory
 from selfsense.sim.truth import truth_path
 
@@ -117,6 +117,30 @@ def test_rate_kp_loops_widen_with_rate_and_relax_in_a_hold():
     y = truth_path("rate_kp", up, hp, dt=1e-3)
     assert abs(y[-1] - y[299]) > 1e-3 and np.all(np.abs(np.diff(y[300:])) < 0.05)
     assert np.all(np.abs(y) <= 1.0)
+
+
+@pytest.mark.parametrize("family", ["gpi", "rate_kp"])
+def test_whole_device_randomisation_draws_in_its_ranges_and_keeps_the_device(family):
+    """randomise="device" draws the rig, amplifier, dielectric relaxation and holds within DEVICE_RANGES from a
+    stream of its own: everything the family draw gave stays the same device."""
+    a = draw_device(family, 5, "drift")
+    b = draw_device(family, 5, "drift", randomise="device")
+    r = b["randomise"]
+    changed = {k for k in a["device"] if a["device"][k] != b["device"][k]}
+    assert changed <= {"ecreep_c_v", "ecreep_tau_s", "inamp_gain"}
+    assert {k: v for k, v in a["effects"].items()} == {k: v for k, v in b["effects"].items() if k != "amplifier_limits"}
+    for key in ("sample_rate_hz", "laser_noise_m", "amplifier_bandwidth_hz", "amplifier_limits", "dielectric_weight",
+                "hold_s"):
+        lo, hi = DEVICE_RANGES[key][0]
+        assert lo <= r[key] <= hi, key
+    assert DEVICE_RANGES["adc_bits"][0][0] <= b["device"]["adc_bits"] <= DEVICE_RANGES["adc_bits"][0][1]
+    assert b["sample_rate_hz"] * b["substeps"] >= 10000.0
+    assert all(0.1 <= t <= 100.0 for t in b["device"]["ecreep_tau_s"])
+    for tr in b["trials"]:
+        if tr.get("signal") == "mixed":   # long enough for two trapezoids with their holds
+            assert tr["hold_s"] == r["hold_s"] and tr["duration"] >= 2 * (0.8 + 2 * r["hold_s"])
+    with pytest.raises(ValueError, match="unknown randomisation"):
+        draw_device(family, 5, randomise="everything")
 
 
 def test_unknown_family_and_preset_are_refused():

@@ -13,7 +13,7 @@ __all__ = ["main"]
 def main(argv=None) -> int:
     import argparse
 
-    from selfsense.sim.families import FAMILIES, PRESETS
+    from selfsense.sim.families import FAMILIES, PRESETS, RANDOMISE
 
     ap = argparse.ArgumentParser(prog="selfsense devices", allow_abbrev=False,
                                  description="Cross-device accuracy benchmark: Table 3 on virtual devices of several "
@@ -26,6 +26,9 @@ def main(argv=None) -> int:
     r.add_argument("--configfile", default=None, help="pipeline config whose calibration/estimation blocks to use")
     r.add_argument("--protocol", default="three_trial", choices=PROTOCOLS,
                    help="calibration trials: thesis (free-tip and blocked sines only) or three_trial (default)")
+    r.add_argument("--randomise", default="hysteresis", choices=RANDOMISE,
+                   help="hysteresis: the family and the device constants (default); device: also the rig, amplifier, "
+                        "dielectric relaxation and drive holds (docs/simulator.md)")
     r.add_argument("--out", required=True, help="record file (JSON) to write")
     t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
     t.add_argument("records", nargs="+", help="record JSON files")
@@ -40,11 +43,14 @@ def main(argv=None) -> int:
     b.add_argument("--protocol", default="three_trial", choices=PROTOCOLS,
                    help="calibration trials: thesis (free-tip and blocked sines only, as the thesis) or three_trial "
                         "(plus a free-tip mixed drive; default)")
+    b.add_argument("--randomise", default="hysteresis", choices=RANDOMISE,
+                   help="hysteresis: the family and the device constants (default); device: also the rig, amplifier, "
+                        "dielectric relaxation and drive holds (docs/simulator.md)")
     b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "run":
-            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol)
+            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol, a.randomise)
             write_record(rec, a.out)
             print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
                   f"force {rec['force_pct']:.2f} % ({rec['status']})")
@@ -61,7 +67,8 @@ def main(argv=None) -> int:
             for p in pres:
                 if p not in PRESETS:
                     raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
-            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol)
+            bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol,
+                  randomise=a.randomise)
             print(Path(a.out) / "cross_device.md")
     except (ValueError, OSError) as exc:
         print(f"selfsense devices: error: {exc}", file=sys.stderr)

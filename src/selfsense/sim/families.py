@@ -63,6 +63,23 @@ RANGES = {
     "creep": ((0.02, 0.05), "-", "drift preset: mechanical creep, fraction of the elastic strain"),
 }
 
+#: ``randomise="device"``: rig, amplifier, dielectric and drive quantities drawn per device besides the family's
+#: (from a random stream of their own, so that everything ``RANGES`` draws stays the same device); log-uniform where
+#: marked
+DEVICE_RANGES = {
+    "sample_rate_hz": ((1000.0, 20000.0), "Hz", "DAQ sample rate (log-uniform); physics substeps keep <= 0.1 ms"),
+    "adc_bits": ((12, 18), "bit", "ADC resolution (integer)"),
+    "laser_noise_m": ((0.5e-6, 10e-6), "m", "laser resolution (noise, log-uniform)"),
+    "amplifier_bandwidth_hz": ((500.0, 5000.0), "Hz", "HV amplifier bandwidth (log-uniform)"),
+    "amplifier_limits": ((0.05, 0.5), "1/mA", "HV amplifier current limit 1 mA / m and slew limit 1500 V/s / m: "
+                         "2-20 mA, 3-30 kV/s (log-uniform m)"),
+    "dielectric_weight": ((0.0, 0.05), "-", "dielectric relaxation in V_H: total weight of its three lags, share of "
+                          "the V_H span"),
+    "dielectric_tau_s": ((0.1, 100.0), "s", "the three lags (log-uniform)"),
+    "hold_s": ((1.0, 10.0), "s", "holds of the mixed drives (trials lengthened to hold two trapezoids)"),
+}
+RANDOMISE = ("hysteresis", "device")
+
 _V = 150.0
 
 
@@ -127,8 +144,52 @@ def _free_stroke(n, alpha, k, kin, ratio) -> float:
     return ratio * n * alpha * _V / (n * k + kin)
 
 
-def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
-    """Scenario dict (``selfsense.sim.simulate`` format) of one virtual device of ``family``, drawn by ``seed``."""
+def _log_u(rng, key) -> float:
+    lo, hi = DEVICE_RANGES[key][0]
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def _randomise_device(sc: dict, family: str, seed: int) -> None:
+    """Whole-device randomisation (:data:`DEVICE_RANGES`) of a drawn scenario, in place."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILIES.index(family), 7919, 2]))
+    dev = sc["device"]
+    fs = _log_u(rng, "sample_rate_hz")
+    fs = float(np.round(fs, -2))
+    sc["sample_rate_hz"] = fs
+    sc["substeps"] = int(max(1, np.ceil(10000.0 / fs)))
+    lo, hi = DEVICE_RANGES["adc_bits"][0]
+    dev["adc_bits"] = int(rng.integers(lo, hi + 1))
+    dev["laser_noise_m"] = _log_u(rng, "laser_noise_m")
+    dev["amplifier_bandwidth_hz"] = _log_u(rng, "amplifier_bandwidth_hz")
+    sc["effects"]["amplifier_limits"] = _log_u(rng, "amplifier_limits")
+    # dielectric relaxation: three lags, weights a share of the V_H span (h_lin + the hysteretic swing)
+    span = abs(dev["h_lin_v"]) + sc.pop("_h_swing_v")
+    lo, hi = DEVICE_RANGES["dielectric_weight"][0]
+    w = float(rng.uniform(lo, hi)) * rng.dirichlet(np.ones(3))
+    taus = np.sort([_log_u(rng, "dielectric_tau_s") for _ in range(3)])
+    dev["ecreep_c_v"] = [float(x * span) for x in w]
+    dev["ecreep_tau_s"] = [float(t) for t in taus]
+    hold = float(rng.uniform(*DEVICE_RANGES["hold_s"][0]))
+    for tr in sc["trials"]:
+        if tr.get("signal") == "mixed":
+            ramp = float(tr.get("ramp_s", 0.4))
+            tr["hold_s"] = round(hold, 3)
+            tr["duration"] = float(max(tr["duration"], np.ceil(2 * (2 * ramp + 2 * hold) + 3.0 / tr["freq"])))
+    sc["randomise"] = {"sample_rate_hz": fs, "substeps": sc["substeps"], "adc_bits": dev["adc_bits"],
+                       "laser_noise_m": dev["laser_noise_m"], "amplifier_bandwidth_hz": dev["amplifier_bandwidth_hz"],
+                       "amplifier_limits": sc["effects"]["amplifier_limits"],
+                       "dielectric_weight": float(np.sum(w)), "dielectric_tau_s": [float(t) for t in taus],
+                       "hold_s": round(hold, 3)}
+
+
+def draw_device(family: str, seed: int, preset: str = "clean", randomise: str = "hysteresis") -> dict:
+    """Scenario dict (``selfsense.sim.simulate`` format) of one virtual device of ``family``, drawn by ``seed``.
+
+    ``randomise``: ``hysteresis`` (the family and the quantities of ``RANGES``) or ``device`` (besides those, the
+    rig, amplifier, dielectric and drive quantities of :data:`DEVICE_RANGES`; the drawn values are in
+    ``scenario["randomise"]``)."""
+    if randomise not in RANDOMISE:
+        raise ValueError(f"unknown randomisation {randomise!r}; expected one of {RANDOMISE}")
     if family not in FAMILIES:
         raise ValueError(f"unknown device family {family!r}; expected one of {FAMILIES}")
     if preset not in PRESETS:
@@ -218,6 +279,9 @@ def draw_device(family: str, seed: int, preset: str = "clean") -> dict:
     sc["trials"] = device_trials(freq, amp, large_mm, small_mm)
     # and lowers the in-amp gain if a test drive shows the shunt channel would clip (steep V_H(q) segments draw
     # current spikes): peak of the free mixed and blocked sine calibration drives kept within 8 V of the 10 V ADC
+    if randomise == "device":
+        sc["_h_swing_v"] = swing
+        _randomise_device(sc, family, seed)
     i_max = _peak_current(sc)
     R = base.shunt_resistance_ohm
     if dev["inamp_gain"] * R * i_max > 8.0:

@@ -45,7 +45,7 @@ TRUTH_COLUMNS = ("t", "q", "V", "V_p", "V_H", "x_pzt", "dx_tip", "f_tip")
 TRIAL_KEYS = {"trial", "role", "tip", "object_mm", "reference", "signal", "duration", "amplitude", "freq",
               "relay_s", "rest_before_s", "levels", "hold_s", "ramp_s"}
 SCENARIO_KEYS = {"name", "seed", "sample_rate_hz", "substeps", "device", "effects", "effects_defaults",
-                 "trials", "description"}
+                 "trials", "description", "randomise"}   # randomise: a record of what draw_device drew (not used here)
 MODE_F_REF = 50.0
 SECOND_MODE_HZ = 173.0
 
