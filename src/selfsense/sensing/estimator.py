@@ -699,7 +699,8 @@ class SelfSensingEstimator:
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
         if not free_mask.any():
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
-        sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg),
+        candidates = tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg)
+        sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
                              n_blocks=int(cfg.cv_blocks), trial_names=names)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":

@@ -149,8 +149,10 @@ def _log_u(rng, key) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _randomise_device(sc: dict, family: str, seed: int) -> None:
-    """Whole-device randomisation (:data:`DEVICE_RANGES`) of a drawn scenario, in place."""
+def _randomise_device(sc: dict, family: str, seed: int, swing: float) -> None:
+    """Whole-device randomisation (:data:`DEVICE_RANGES`) of a drawn scenario, in place; ``swing`` [V]: the drawn
+    hysteretic swing. The dielectric relaxation replaces the family draw's electrical creep (the same element of the
+    kernel, now with lags up to 100 s)."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILIES.index(family), 7919, 2]))
     dev = sc["device"]
     fs = _log_u(rng, "sample_rate_hz")
@@ -163,7 +165,7 @@ def _randomise_device(sc: dict, family: str, seed: int) -> None:
     dev["amplifier_bandwidth_hz"] = _log_u(rng, "amplifier_bandwidth_hz")
     sc["effects"]["amplifier_limits"] = _log_u(rng, "amplifier_limits")
     # dielectric relaxation: three lags, weights a share of the V_H span (h_lin + the hysteretic swing)
-    span = abs(dev["h_lin_v"]) + sc.pop("_h_swing_v")
+    span = abs(dev["h_lin_v"]) + swing
     lo, hi = DEVICE_RANGES["dielectric_weight"][0]
     w = float(rng.uniform(lo, hi)) * rng.dirichlet(np.ones(3))
     taus = np.sort([_log_u(rng, "dielectric_tau_s") for _ in range(3)])
@@ -280,8 +282,7 @@ def draw_device(family: str, seed: int, preset: str = "clean", randomise: str = 
     # and lowers the in-amp gain if a test drive shows the shunt channel would clip (steep V_H(q) segments draw
     # current spikes): peak of the free mixed and blocked sine calibration drives kept within 8 V of the 10 V ADC
     if randomise == "device":
-        sc["_h_swing_v"] = swing
-        _randomise_device(sc, family, seed)
+        _randomise_device(sc, family, seed, swing)
     i_max = _peak_current(sc)
     R = base.shunt_resistance_ohm
     if dev["inamp_gain"] * R * i_max > 8.0:
