@@ -31,6 +31,7 @@ ROOT = HERE.parent
 DATES = {
     "cross_device": "2026-11-24",
     "first_contact_rate_kp": "2026-11-26",
+    "whole_device": "2026-11-26",
     "gap_stages": "2026-11-24",
     "gap_tip": "2026-11-24",
     "stage_chain": "2026-11-24",
@@ -41,6 +42,8 @@ COMMANDS = {
     "cross_device": "selfsense devices bench --n 10 --jobs 2 --out benchmarks/cross_device",
     "first_contact_rate_kp": "selfsense devices bench --n 10 --families rate_kp --jobs 2 --protocol {protocol} "
                              "--out benchmarks/cross_device/first_contact_rate_kp/{protocol}",
+    "whole_device": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
+                    "--out benchmarks/cross_device/whole_device/thesis",
     "gap_stages": "selfsense gap blind --n 1000 --seed 7 --jobs 2 --out benchmarks/gap_stages",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
@@ -154,6 +157,16 @@ def cross_device_figures() -> list[Fig]:
                            _met(dm <= tgt[0] and fm <= tgt[1]), fsrc,
                            COMMANDS["first_contact_rate_kp"].format(protocol=protocol),
                            DATES["first_contact_rate_kp"]))
+    # the whole-device randomisation on the thesis protocol, five families: its first contact
+    wsrc = "benchmarks/cross_device/whole_device/thesis/cross_device.csv"
+    for r in sorted(csv.DictReader((ROOT / wsrc).open()), key=lambda r: (r["preset"], r["family"])):
+        tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
+        dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
+        out.append(Fig(f"{FAMILY[r['family']]}, {r['preset']} preset, whole-device randomisation, thesis calibration "
+                       f"(first contact; {r['n_devices']} devices, {r['n_failed']} failed): median (p90) displacement / "
+                       f"force", f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
+                       f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
+                       _met(dm <= tgt[0] and fm <= tgt[1]), wsrc, COMMANDS["whole_device"], DATES["whole_device"]))
     return out
 
 

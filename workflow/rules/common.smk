@@ -20,7 +20,7 @@ SENSING_CONFIG = {k: config.get(k, {}) for k in ("calibration", "estimation")}
 DEVICES = {
     "n": 10,
     "first_seed": 0,
-    "families": ["preisach", "bouc_wen", "gpi", "jiles_atherton"],
+    "families": ["preisach", "bouc_wen", "gpi", "jiles_atherton", "rate_kp"],
     "presets": ["clean", "drift"],
     **config.get("devices", {}),
 }

@@ -13,7 +13,7 @@ rule device_job:
     benchmark:
         res("cross_device", "benchmarks", "{family}_{preset}_{seed}.tsv")
     wildcard_constraints:
-        family="preisach|bouc_wen|gpi|jiles_atherton",
+        family="preisach|bouc_wen|gpi|jiles_atherton|rate_kp",
         preset="clean|drift",
         seed=r"\d+",
     conda:
