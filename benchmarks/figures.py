@@ -132,43 +132,34 @@ def _pct(cell: str) -> str:
     return f"{float(m.group()):.2f} %" if m else cell
 
 
-def cross_device_figures() -> list[Fig]:
-    src = "benchmarks/cross_device/cross_device.csv"
-    rows = list(csv.DictReader((ROOT / src).open()))
+def _device_table_figures(src: str, what: str, command: str, date: str) -> list[Fig]:
+    """One row per family and preset of a ``selfsense devices bench`` table (``cross_device.csv``): median (p90)
+    displacement / force against the targets (clean 5 / 8 %, drift 8 / 12 %); ``what`` names the benchmark case."""
     out = []
-    for r in sorted(rows, key=lambda r: (r["preset"], r["family"])):
+    for r in sorted(csv.DictReader((ROOT / src).open()), key=lambda r: (r["preset"], r["family"])):
         tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
         dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
-        out.append(Fig(f"{FAMILY.get(r['family'], r['family'])}, {r['preset']} preset, three-trial calibration "
-                       f"({r['n_devices']} devices, {r['n_failed']} failed): median (p90) displacement / force",
+        out.append(Fig(f"{FAMILY.get(r['family'], r['family'])}, {r['preset']} preset, {what} ({r['n_devices']} "
+                       f"devices, {r['n_failed']} failed): median (p90) displacement / force",
                        f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
                        f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
-                       _met(dm <= tgt[0] and fm <= tgt[1]), src, COMMANDS["cross_device"], DATES["cross_device"]))
-    # the fifth family's first contact: scored once before any estimator change for it (its README)
-    # (its three-trial first contact is the same 20 devices as its rows of the main table above)
-    for protocol, name in (("thesis", "thesis calibration (two sines)"),):
-        fsrc = f"benchmarks/cross_device/first_contact_rate_kp/{protocol}/cross_device.csv"
-        for r in sorted(csv.DictReader((ROOT / fsrc).open()), key=lambda r: r["preset"]):
-            tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
-            dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
-            out.append(Fig(f"{FAMILY[r['family']]} (first contact, no estimator change for it), {r['preset']} preset, "
-                           f"{name} ({r['n_devices']} devices, {r['n_failed']} failed): median (p90) displacement / "
-                           f"force", f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
-                           f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
-                           _met(dm <= tgt[0] and fm <= tgt[1]), fsrc,
-                           COMMANDS["first_contact_rate_kp"].format(protocol=protocol),
-                           DATES["first_contact_rate_kp"]))
-    # the whole-device randomisation on the thesis protocol, five families: its first contact
-    wsrc = "benchmarks/cross_device/whole_device/thesis/cross_device.csv"
-    for r in sorted(csv.DictReader((ROOT / wsrc).open()), key=lambda r: (r["preset"], r["family"])):
-        tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
-        dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
-        out.append(Fig(f"{FAMILY[r['family']]}, {r['preset']} preset, whole-device randomisation, thesis calibration "
-                       f"(first contact; {r['n_devices']} devices, {r['n_failed']} failed): median (p90) displacement / "
-                       f"force", f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
-                       f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
-                       _met(dm <= tgt[0] and fm <= tgt[1]), wsrc, COMMANDS["whole_device"], DATES["whole_device"]))
+                       _met(dm <= tgt[0] and fm <= tgt[1]), src, command, date))
     return out
+
+
+def cross_device_figures() -> list[Fig]:
+    return (_device_table_figures("benchmarks/cross_device/cross_device.csv", "three-trial calibration",
+                                  COMMANDS["cross_device"], DATES["cross_device"])
+            # the fifth family's first contact on the thesis protocol, scored once before any estimator change for it
+            # (its three-trial first contact is the same 20 devices as its rows of the main table)
+            + _device_table_figures("benchmarks/cross_device/first_contact_rate_kp/thesis/cross_device.csv",
+                                    "thesis calibration (two sines), first contact",
+                                    COMMANDS["first_contact_rate_kp"].format(protocol="thesis"),
+                                    DATES["first_contact_rate_kp"])
+            # the whole-device randomisation on the thesis protocol, five families: its first contact
+            + _device_table_figures("benchmarks/cross_device/whole_device/thesis/cross_device.csv",
+                                    "whole-device randomisation, thesis calibration, first contact",
+                                    COMMANDS["whole_device"], DATES["whole_device"]))
 
 
 def stage_chain_figures() -> list[Fig]:
