@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 
 from selfsense.hysteresis.models import (REGISTRY, DegenerateFitError, LinearH, PlayH, PreisachH, h_from_dict,
-                                         make_model)
+                                         make_model, qr_reduce, ridge_lstsq)
 from selfsense.hysteresis.models._grid import preisach_grid_features, relaxation_bank
-from selfsense.hysteresis.models import qr_reduce, ridge_lstsq
 from selfsense.hysteresis.models.select import _cv_linear, blocked_folds, select_h_model, stacked_design
 from selfsense.hysteresis.operators import play_operator
 

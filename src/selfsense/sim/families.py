@@ -279,10 +279,10 @@ def draw_device(family: str, seed: int, preset: str = "clean", randomise: str = 
     large_mm = round((S + 1.0e-3 - 0.35 * s_amp) * 1e3, 3)
     small_mm = round((S + 1.0e-3 - 0.65 * s_amp) * 1e3, 3)
     sc["trials"] = device_trials(freq, amp, large_mm, small_mm)
-    # and lowers the in-amp gain if a test drive shows the shunt channel would clip (steep V_H(q) segments draw
-    # current spikes): peak of the free mixed and blocked sine calibration drives kept within 8 V of the 10 V ADC
     if randomise == "device":
         _randomise_device(sc, family, seed, swing)
+    # and lowers the in-amp gain if a test drive shows the shunt channel would clip (steep V_H(q) segments draw
+    # current spikes): peak of the free mixed and blocked sine calibration drives kept within 8 V of the 10 V ADC
     i_max = _peak_current(sc)
     R = base.shunt_resistance_ohm
     if dev["inamp_gain"] * R * i_max > 8.0:
