@@ -142,6 +142,36 @@ def test_validation_trials_never_used_for_fitting(data):
     assert a.coef_ == b.coef_
 
 
+def test_hold_rows_read_every_trial_s_v_and_q_and_never_a_validation_reference(data):
+    """hold_rows: auto takes the holds of every trial into the H(q) fit from V and Q alone: poisoning the references
+    of the validation trials changes nothing, while their charge in a hold does change H."""
+    trials, meta = data
+    cfg = SensingConfig(h_model="preisach", cv_blocks=3, drift="off", limit=False)
+    a = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    rep = a.fit_report_["hysteresis"]["hold_rows"]
+    assert rep["applied"] and {"val_obj_d", "val_free", "val_block"} <= set(rep["trials"])
+    poisoned = dict(trials)
+    for t in ("val_obj_d", "val_free", "val_block"):
+        bad = trials[t].copy()
+        bad["dx_ref"] = 1.0
+        bad["f_ref"] = -5.0
+        poisoned[t] = bad
+    b = SelfSensingEstimator(config=cfg, rig=RIG).fit(poisoned, meta)
+    assert a.coef_ == b.coef_
+    np.testing.assert_array_equal(a.hysteresis_.coef_, b.hysteresis_.coef_)
+    # a charge ramp inside the holds of one validation trial moves the creep of H
+    ramped = dict(trials)
+    bad = trials["val_free"].copy()
+    bad["q"] = bad["q"] + 2e-7 * bad["t"]
+    ramped["val_free"] = bad
+    c = SelfSensingEstimator(config=cfg, rig=RIG).fit(ramped, meta)
+    assert not np.allclose(a.hysteresis_.coef_, c.hysteresis_.coef_)
+    off = SelfSensingEstimator(config=SensingConfig(**{**cfg.__dict__, "hold_rows": "off"}), rig=RIG).fit(ramped, meta)
+    assert off.fit_report_["hysteresis"]["hold_rows"]["applied"] is False
+    with pytest.raises(ValueError, match="hold_rows"):
+        SensingConfig(hold_rows="on")
+
+
 def test_json_round_trip_gives_identical_estimates(data):
     trials, meta = data
     cfg = SensingConfig(n_play=8, n_sup=4, n_creep=2, creep=True, **LEGACY)

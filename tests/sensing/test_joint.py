@@ -8,7 +8,9 @@ import pandas as pd
 import pytest
 
 from selfsense import io as sio
+from selfsense.chain.charge import find_holds
 from selfsense.hysteresis.models import make_model
+from selfsense.hysteresis.models.holds import HoldSet
 from selfsense.hysteresis.models.select import select_h_model
 from selfsense.sensing import SelfSensingEstimator, SensingConfig
 from selfsense.sensing.core import h_target
@@ -77,8 +79,18 @@ def test_auto_selection_in_the_pipeline_equals_the_public_selection():
         # the pipeline's trial order is trials.csv's
         order = [t for t in meta.index if t in ("cal_free_sine", "cal_blocked_sine", "cal_free_mixed")]
         idx = [("cal_free_sine", "cal_blocked_sine", "cal_free_mixed").index(t) for t in order]
+        # the hold rows of every trial (V and Q only; docs/method.md 6b'), in trial-name order
+        holds = HoldSet()
+        for t in sorted(meta.index):
+            df = sigs[t]
+            m = df["relay"].to_numpy() < 0.5
+            q, V = df["q"].to_numpy()[m], df["V"].to_numpy()[m]
+            found = find_holds(df["t"].to_numpy()[m], V)
+            if found:
+                holds.qs.append(q); holds.ys.append(V - q / (n * C)); holds.holds.append(found); holds.names.append(t)
+        assert holds and holds.names == est.fit_report_["hysteresis"]["hold_rows"]["trials"]
         sel = select_h_model([qs[i] for i in idx], [ys[i] for i in idx], 1e-3, extras=[ex[i] for i in idx],
-                             free=[free[i] for i in idx])
+                             free=[free[i] for i in idx], holds=holds)
         assert sel.model.label() == est.hysteresis_.label()
         np.testing.assert_allclose(sel.model.predict(qs[0]), est.hysteresis_.predict(qs[0]), rtol=0, atol=1e-9)
         # h_candidates (compare_modes' second calibration mode): the straight line and the selected form only give

@@ -588,7 +588,10 @@ def test_causal_offset_drift_member_streams_and_recovers_most_of_the_batch_gain(
     d = ROOT / "data" / "raw" / "sample"
     meta = sio.load_trials(d).set_index("trial")
     sigs = {t: stages.ingest(d, t, tmp_path / f"{t}.parquet") for t in meta.index}
-    est = SelfSensingEstimator(config=SensingConfig(), rig=sio.load_rig(d)).fit(sigs, meta)
+    # hold_rows off: with the hold rows (the default) H(q) explains most of what the drift member corrects on this
+    # trial, and the causal member is no better than none there (docs/benchmarks.md); the member itself is what this
+    # test measures
+    est = SelfSensingEstimator(config=SensingConfig(hold_rows="off"), rig=sio.load_rig(d)).fit(sigs, meta)
     assert est.offset_drift_, "the bundled sample no longer adopts the offset-drift member: pick another dataset"
     with pytest.raises(NotImplementedError, match="drift='causal'"):
         SelfSensingStream(est)

@@ -186,6 +186,10 @@ def _model_section(results_dir: Path) -> list[str]:
             hev = drift.get("hold_evidence") or {}
             if hev.get("note"):
                 kind += f"; reference-free hold evidence of all trials: {html.escape(str(hev['note']))}"
+        hr = rep.get("hold_rows") or {}
+        if hr.get("note"):
+            kind += (f"; creep of H(q) from the holds of every trial (V and Q only, docs/method.md 6b'): "
+                     f"{'used' if hr.get('applied') else 'not used'}, {html.escape(str(hr['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"

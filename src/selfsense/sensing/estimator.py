@@ -36,7 +36,7 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from selfsense.hysteresis.models import ridge_lstsq
+from selfsense.hysteresis.models import LinearParamH, ridge_lstsq
 from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
@@ -86,6 +86,7 @@ class SensingConfig:
     cv_blocks: int = 5
     h_identification: str = "joint"
     rest_offset: str = "auto"
+    hold_rows: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -102,6 +103,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.drift: expected one of {DRIFT}, found {self.drift!r}")
         if self.rest_offset not in ("auto", "off"):
             raise ValueError(f"SensingConfig.rest_offset: expected 'auto' or 'off', found {self.rest_offset!r}")
+        if self.hold_rows not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.hold_rows: expected 'auto' or 'off', found {self.hold_rows!r}")
         if int(self.cv_blocks) < 2:
             raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
@@ -458,7 +461,8 @@ class SelfSensingEstimator:
         self.hold_evidence_ = hold_evidence(
             {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}).to_dict()
         cal_trials = {t: trials[t] for t in cal.index}
-
+        # V, Q and relay of every trial for the reference-free hold rows of the H(q) fit (_hold_set)
+        self._all_trials = {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}
 
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
@@ -520,6 +524,7 @@ class SelfSensingEstimator:
                 y = h_target(df_fit["V"].to_numpy(), Q, slope)
                 self.hysteresis_, rep = _fit_thesis_modified_pi(cfg, Q, y, dt)
         rep["trial"] = free_id
+        self._all_trials = None
         self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
         self._fit_ranges(cal_trials, cal)
         return self
@@ -700,8 +705,9 @@ class SelfSensingEstimator:
         if not free_mask.any():
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
         candidates = tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg)
+        holds = self._hold_set(slope, drift_cols=self.offset_drift_)
         sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                             n_blocks=int(cfg.cv_blocks), trial_names=names)
+                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
             from selfsense.hysteresis.models import make_model
@@ -712,6 +718,8 @@ class SelfSensingEstimator:
             i0 = int(np.flatnonzero(free_mask)[0])
             if chosen["kind"] == "modified_pi":
                 model.fit(qs[i0], ys[i0], dt)
+            elif isinstance(model, LinearParamH) or getattr(model, "joint_extra", False):
+                model.fit(qs, ys, dt, extra=ex, holds=holds)
             else:
                 model.fit(qs, ys, dt, extra=ex)
             sel.table = table
@@ -723,7 +731,7 @@ class SelfSensingEstimator:
                 log.warning(sel.warnings[-1])
         if self.offset_drift_:
             model, qs, ys, ex, sel.extra_coef, drift_info["joint_refit"] = self._refit_on_drift_free_charge(
-                model, sel, cal_trials, names, slope, dt, qs, ys, ex)
+                model, sel, cal_trials, names, slope, dt, qs, ys, ex, holds)
         rms = []
         for q, y, e in zip(qs, ys, ex):
             pred = model.predict(q, dt)
@@ -739,12 +747,58 @@ class SelfSensingEstimator:
                                               - y0 + (ex[int(np.flatnonzero(free_mask)[0])] @ sel.extra_coef
                                                       if len(sel.extra_coef) else 0.0))) / rng * 100),
                "drift": drift_info, "extra_coef": [float(c) for c in sel.extra_coef],
+               "hold_rows": self._hold_rows_report(holds, model),
                "n_samples_fit": int(sum(len(q) for q in qs))}
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
 
-    def _refit_on_drift_free_charge(self, model, sel, cal_trials, names, slope, dt, qs, ys, ex):
+    def _hold_set(self, slope: float, drift_free: bool = False, drift_cols: bool = False):
+        """The reference-free hold rows of every trial (:mod:`selfsense.hysteresis.models.holds`): each trial's
+        record after the relay opens, its H target ``V - slope Q`` on the leakage-corrected charge, and its holds
+        (:func:`selfsense.chain.charge.find_holds`); None with ``hold_rows: off`` or where no trial holds.
+        ``drift_free``: each trial's offset drift, estimated from its own rest segments with the current H
+        (:meth:`rest_drift`), taken out of its charge first. ``drift_cols``: each trial's drift ramp ``t, t^2``
+        (scaled by the gauge slope) as hold-only columns fitted jointly, so that the creep of H does not take up the
+        drift while the member is being identified (the rest segments are holds too)."""
+        from selfsense.chain.charge import find_holds
+        from selfsense.hysteresis.models.holds import HoldSet
+
+        if self.config.hold_rows == "off":
+            return None
+        hs = HoldSet(extras=[] if drift_cols else None)
+        for tid in sorted(getattr(self, "_all_trials", {}) or {}):
+            df = self._all_trials[tid]
+            m = df["relay"].to_numpy() < 0.5
+            if m.sum() < 10:
+                continue
+            V = df["V"].to_numpy(dtype=float)[m]
+            found = find_holds(df["t"].to_numpy(dtype=float)[m], V)
+            if not found:
+                continue
+            Q = self._charge(df, self.leakage_s_)
+            if drift_free:
+                Q = Q - self.rest_drift(df, Q)[0]
+            end = max(b for _, b in found)   # the operators run from the relaxed state up to the last hold's end
+            Q = Q[m][:end]
+            hs.qs.append(Q); hs.ys.append(h_target(V[:end], Q, slope)); hs.holds.append(found); hs.names.append(tid)
+            if drift_cols:
+                tt = df["t"].to_numpy(dtype=float)[m]
+                tt = (tt - tt[0])[:end]
+                hs.extras.append(slope * np.column_stack([tt, tt * tt]))
+        return hs if hs else None
+
+    def _hold_rows_report(self, holds, model) -> dict:
+        if holds is None:
+            why = "off (config hold_rows: off)" if self.config.hold_rows == "off" else "no hold in any trial"
+            return {"applied": False, "note": why}
+        fitted = isinstance(model, LinearParamH) or getattr(model, "joint_extra", False)
+        return {**holds.summary(), "applied": True, "fitted": fitted,
+                "note": (f"{holds.summary()['n_holds']} holds of {len(holds.names)} trials (V and Q only) "
+                         + ("fitted with the calibration rows and scored in the selection" if fitted else
+                            "scored in the selection; the selected model does not take them in its fit"))}
+
+    def _refit_on_drift_free_charge(self, model, sel, cal_trials, names, slope, dt, qs, ys, ex, holds=None):
         """H(q) and the offset drift identified jointly: the drift columns of the selection's fit stand in for the
         drift while H is chosen, but H still sees the drifting charge; here each calibration trial's drift is
         estimated from its rest segments with that H (:meth:`rest_drift`), taken out of its charge, and the selected
@@ -774,7 +828,7 @@ class SelfSensingEstimator:
                 ys2.append(h_target(df["V"].to_numpy()[m], Qc, slope))
                 moved[tid] = {"max_abs_c": float(np.max(np.abs(dQ))), "form": info.get("form", info.get("note", ""))}
             refit = make_model(row["kind"], **row["params"])
-            refit.fit(qs2, ys2, dt, extra=ex2)
+            refit.fit(qs2, ys2, dt, extra=ex2, holds=self._hold_set(slope, drift_free=True) if holds else None)
         self.hysteresis_ = None
         return refit, qs2, ys2, ex2, np.asarray(refit.extra_coef_, float), {
             "applied": True, "alternations": N_DRIFT_ALTERNATIONS, "drift": moved}

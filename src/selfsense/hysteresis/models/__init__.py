@@ -138,9 +138,10 @@ class LinearParamH:
         self._setup([self._u(x) for x in qs])
         return self
 
-    def fit(self, q, v, dt: float, extra=None) -> "LinearParamH":
+    def fit(self, q, v, dt: float, extra=None, holds=None) -> "LinearParamH":
         """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring);
-        records longer than :data:`MAX_FIT_ROWS` samples in all are fitted on every k-th sample."""
+        records longer than :data:`MAX_FIT_ROWS` samples in all are fitted on every k-th sample. ``holds``
+        (:class:`~selfsense.hysteresis.models.holds.HoldSet`) adds the reference-free hold rows of every trial."""
         qs, vs = _segments(q, v)
         self.prepare(qs, dt)
         k = fit_stride([len(x) for x in qs])
@@ -158,12 +159,23 @@ class LinearParamH:
             E = np.vstack([np.asarray(e, dtype=float).reshape(len(x), -1)[::k] for e, x in zip(extra, qs)])
             X = np.column_stack([X, E])
             pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
+        n_hold = n_hx = 0
+        if holds:
+            from .holds import hold_design
+
+            n_hx = holds.n_extra()   # hold-only columns (drift while it is identified), not part of the model
+            Xh, yh, _ = hold_design(self, holds, dt, len(y), X.shape[1])
+            X = np.vstack([np.column_stack([X, np.zeros((len(X), n_hx))]), Xh])
+            y, n_hold = np.concatenate([y, yh]), len(yh)
+            pen = np.concatenate([pen, np.zeros(n_hx, bool)])
         coef = ridge_lstsq(X, y, pen, self.ridge, lower=self._bounds(X.shape[1]))
+        resid = X @ coef - y
+        coef = coef[:len(coef) - n_hx]
         nE = 0 if E is None else E.shape[1]
         self.coef_ = coef[:len(coef) - nE]
         self.extra_coef_ = coef[len(coef) - nE:]
-        resid = X @ coef - y
         self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(resid**2))), "n_samples": int(len(y)), "row_stride": k,
+                            "n_hold_rows": int(n_hold),
                             "n_parameters": int(X.shape[1]), "solver": "pivoted-QR least squares (ridge)"}
         return self
 

@@ -102,17 +102,40 @@ class DuhemH:
                          vmin, vmax, int(stride), bool(jac), duhem_state() if state is None else state)
 
     # -- fit ----------------------------------------------------------------------------------------------------------
-    def fit(self, q, v, dt: float, extra=None, row_mask=None) -> "DuhemH":
+    def fit(self, q, v, dt: float, extra=None, row_mask=None, holds=None) -> "DuhemH":
         """Fit on one or several segments (each from the relaxed state); ``extra``: joint columns (one array per
         segment, or stacked), fitted without penalty; ``row_mask``: rows (one boolean array per segment, or stacked)
-        that enter the objective (blocked cross-validation). Runs with one BLAS thread: the matrices are small
-        (<= MAX_OE_ROWS x a few dozen), and threads contending for the cores made it ten times slower."""
+        that enter the objective (blocked cross-validation); ``holds``
+        (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the reference-free hold rows of every trial join the
+        linear part (creep bank, offset) once the Duhem map is fitted -- the map is rate-independent, so a hold
+        constrains the creep only. Runs with one BLAS thread: the matrices are small (<= MAX_OE_ROWS x a few
+        dozen), and threads contending for the cores made it ten times slower."""
         from threadpoolctl import threadpool_limits
 
         with threadpool_limits(1):
-            return self._fit(q, v, dt, extra, row_mask)
+            return self._fit(q, v, dt, extra, row_mask, holds)
 
-    def _fit(self, q, v, dt, extra, row_mask) -> "DuhemH":
+    def _hold_rows(self, holds, c, dt: float, n_cal: int, n_cols: int):
+        """Weighted hold rows of the linear part: differences of ``[creep bank | 1]`` within each hold and of the
+        target minus the fitted Duhem map (:mod:`selfsense.hysteresis.models.holds`)."""
+        from .holds import _stride_and_weight
+
+        s, w = _stride_and_weight(holds, n_cal)
+        Ls, rs, cache = [], [], {}
+        for i, idx, a0, _ in holds.rows(s):
+            if i not in cache:
+                u = self._u(holds.qs[i])
+                cache[i] = (self._linear_cols(u, dt, s), self._run(u, c, s)[0])
+            Lc, Vd = cache[i]
+            y = np.asarray(holds.ys[i], float)
+            D = Lc[idx // s] - Lc[a0 // s]
+            Ls.append(w * np.column_stack([D, np.zeros((idx.size, n_cols - D.shape[1])), holds.extra_rows(i, idx, a0)]))
+            rs.append(w * ((y[idx] - y[a0]) - (Vd[idx // s] - Vd[a0 // s])))
+        if not Ls:
+            return np.zeros((0, n_cols + holds.n_extra())), np.zeros(0)
+        return np.vstack(Ls), np.concatenate(rs)
+
+    def _fit(self, q, v, dt, extra, row_mask, holds=None) -> "DuhemH":
         from scipy.optimize import least_squares
 
         qs, vs = _segments(q, v)
@@ -178,13 +201,22 @@ class DuhemH:
         sol = best
         c = sol.x
         Vall = np.concatenate([self._run(u, c, k)[0][r] for u, r in zip(us, rows)])
-        beta, *_ = np.linalg.lstsq(L, y - Vall, rcond=None)
+        n_hold = 0
+        if holds:
+            Lh, rh = self._hold_rows(holds, c, dt, y.size, L.shape[1])
+            Lz = np.column_stack([L, np.zeros((len(L), Lh.shape[1] - L.shape[1]))])
+            beta, *_ = np.linalg.lstsq(np.vstack([Lz, Lh]), np.concatenate([y - Vall, rh]), rcond=None)
+            beta = beta[:L.shape[1]]   # the hold-only columns are not part of the model
+            n_hold = len(rh)
+        else:
+            beta, *_ = np.linalg.lstsq(L, y - Vall, rcond=None)
         self.coef_ = np.asarray(c, float)
         self.lin_coef_ = beta[:nl]
         self.extra_coef_ = beta[nl:]
         res = y - Vall - L @ beta
         self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(res**2))), "n_samples": int(y.size), "row_stride": k,
                             "n_parameters": int(nb + L.shape[1]), "nfev": int(sol.nfev), "status": int(sol.status),
+                            "n_hold_rows": int(n_hold),
                             "solver": "variable-projection trust-region least squares (output error)"}
         return self
 

@@ -105,12 +105,40 @@ def stacked_design(model: LinearParamH, qs, ys, dt, extras, stride: int):
     return X, y, pen
 
 
-def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin):
+def _hold_folds(hold_id: np.ndarray, n_folds: int) -> np.ndarray:
+    """Held-out masks of the hold rows: hold h is held out in fold h mod n_folds (a hold is never split)."""
+    return np.stack([hold_id % n_folds == f for f in range(n_folds)]) if n_folds else np.zeros((0, 0), bool)
+
+
+def _combined_rms(r_cal: np.ndarray, r_hold: np.ndarray, w2: float = 1.0) -> float:
+    """RMS of the held-out calibration and (weighted) hold rows together, each hold row counting as the ``w2``
+    hold samples it stands for."""
+    n = r_cal.size + (r_hold.size * w2 if r_hold.size else 0.0)
+    ss = float(np.sum(r_cal ** 2)) + float(np.sum(r_hold ** 2))
+    return float(np.sqrt(ss / n)) if n else float("nan")
+
+
+def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin, holds=None):
     """Fold RMS of ``model``; ``extras`` per segment, ``folds`` over the stacked rows of every ``fit_stride``-th
-    sample."""
+    sample; ``holds`` (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the hold rows of every trial join the
+    fit, each hold held out in one fold and scored there."""
     X, y, pen = stacked_design(model, qs, ys, dt, extras, fit_stride([len(q) for q in qs]))
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
+    n_cal = len(y)
+    w2 = 1.0
+    if holds:
+        from .holds import _stride_and_weight, hold_design
+
+        Xh, yh, hid = hold_design(model, holds, dt, n_cal, X.shape[1])
+        w2 = _stride_and_weight(holds, n_cal)[1] ** 2
+        hf = _hold_folds(hid, len(folds))
+        folds = [np.concatenate([np.asarray(f, bool), h]) for f, h in zip(folds, hf)]
+        n_hx = holds.n_extra()
+        X = np.vstack([np.column_stack([X, np.zeros((len(X), n_hx))]), Xh])
+        y = np.concatenate([y, yh])
+        pen = np.concatenate([pen, np.zeros(n_hx, bool)])
+        keep = np.concatenate([keep, np.ones(len(yh), bool)])
     rms = []
     lower = model._bounds(X.shape[1])
     held_all = np.asarray(folds, bool)
@@ -129,11 +157,22 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin):
             w = ridge_lstsq(R[:, :p], R[:, p], pen, model.ridge, lower=lower,
                             reduced=(sum(b[1] for b in train), np.sum([b[2] for b in train], axis=0)))
         ev = held & keep
-        rms.append(float(np.sqrt(np.mean((X[ev] @ w - y[ev]) ** 2))))
+        r = X[ev] @ w - y[ev]
+        n_ev_cal = int(np.count_nonzero(ev[:n_cal]))
+        rms.append(_combined_rms(r[:n_ev_cal], r[n_ev_cal:], w2))
     return rms
 
 
-def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
+def _hold_score(model, holds, dt, n_cal: int, n_folds: int):
+    """Per fold: the weighted hold residuals of a fitted model on the holds held out in that fold (models that do
+    not take hold rows in their fit are still scored on them), and ``w^2``."""
+    from .holds import _stride_and_weight, hold_residual
+
+    r, hid = hold_residual(model, holds, dt, n_cal)
+    return r, _hold_folds(hid, n_folds), _stride_and_weight(holds, n_cal)[1] ** 2
+
+
+def _cv_qp(model, qs, ys, dt, E, folds, free, thin, holds=None):
     """CV of a model without extra columns (modified PI): fitted on the first free-tip segment's training rows,
     then the extra columns regressed on the residual of the training rows of all segments."""
     lengths = [len(q) for q in qs]
@@ -153,11 +192,20 @@ def _cv_qp(model, qs, ys, dt, E, folds, free, thin):
             c, *_ = np.linalg.lstsq(E[tr], r[tr], rcond=None)
             r = r - E @ c
         ev = held & keep
-        rms.append(float(np.sqrt(np.mean(r[ev] ** 2))))
+        rms.append(_fold_rms(model, r[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds), len(rms)))
     return rms
 
 
-def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin):
+def _fold_rms(model, r_cal, holds, dt, n_cal: int, n_folds: int, fold: int) -> float:
+    """Held-out RMS of fold ``fold``: calibration rows ``r_cal`` and, with ``holds``, the fitted model's residual on
+    the holds held out in that fold."""
+    if not holds:
+        return float(np.sqrt(np.mean(r_cal ** 2)))
+    rh, hf, w2 = _hold_score(model, holds, dt, n_cal, n_folds)
+    return _combined_rms(r_cal, rh[hf[fold]] if hf.size else rh[:0], w2)
+
+
+def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None):
     """CV of a model that is not linear in its parameters but fits extra columns jointly and accepts a row mask
     (``duhem``): fitted on the training rows of every segment (its state runs over every sample), scored on every
     ``thin``-th held-out row."""
@@ -168,18 +216,22 @@ def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin):
     keep[::thin] = True
     rms = []
     for held in folds:
-        # the model thins its own objective rows (contiguous rows keep its equation-error increments)
-        model.fit(qs, ys, dt, extra=extras, row_mask=split_rows(~held, lengths))
+        # the model thins its own objective rows (contiguous rows keep its equation-error increments); the holds
+        # of the other folds join its fit, those of this fold are scored
+        f = len(rms)
+        kw = {"holds": holds.subset(lambda h: h % len(folds) != f)} if holds else {}
+        model.fit(qs, ys, dt, extra=extras, row_mask=split_rows(~held, lengths), **kw)
         pred = np.concatenate([model.predict(q, dt) for q in qs])
         if extras is not None and len(model.extra_coef_):
             pred = pred + _stack_extra(extras, lengths) @ model.extra_coef_
         ev = held & keep
-        rms.append(float(np.sqrt(np.mean((pred - y)[ev] ** 2))))
+        rms.append(_fold_rms(model, (pred - y)[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds),
+                             len(rms)))
     return rms
 
 
 def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, folds, n_blocks: int, rotate: bool,
-                 thin: int) -> dict:
+                 thin: int, holds=None) -> dict:
     """One row of the selection table: the blocked-CV fold RMS of ``model`` (made from ``kind``, ``params``) on the
     segments, by the fit its class needs (linear least squares, the masked joint fit, or the QP on the first
     free-tip segment); a candidate that cannot be fitted is out of the race and its status says why."""
@@ -187,11 +239,11 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
     k = fit_stride(lengths)
     try:
         if isinstance(model, LinearParamH) or getattr(model, "linear_in_parameters", False):
-            rms = _cv_linear(model, qs, ys, dt, extras, folds, thin)
+            rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds)
         elif getattr(model, "joint_extra", False):
-            rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k)
+            rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds)
         elif k == 1:
-            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin)
+            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin, holds)
         else:
             raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
                              f"200000 samples only")
@@ -240,12 +292,14 @@ def json_safe_table(table: list[dict]) -> list[dict]:
 
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
-                   rotate_folds: bool | None = None) -> SelectionResult:
+                   rotate_folds: bool | None = None, holds=None) -> SelectionResult:
     """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
     columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
 
     ``free``: boolean per segment, the free-tip segments (a model without extra-column support is fitted on the
-    first of them). ``trial_names``: used in warnings and errors."""
+    first of them). ``trial_names``: used in warnings and errors. ``holds``
+    (:class:`~selfsense.hysteresis.models.holds.HoldSet`): reference-free hold rows of every trial, fitted by the
+    models linear in their parameters and scored for every candidate (each hold held out in one fold)."""
     qs = [np.asarray(q, float) for q in qs]
     ys = [np.asarray(y, float) for y in ys]
     lengths = [len(q) for q in qs]
@@ -255,8 +309,9 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     E = _stack_extra(extras, lengths)
     rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
+    holds = holds if holds else None
     table = [cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
-                          rotate, thin) for kind, params in candidates]
+                          rotate, thin, holds) for kind, params in candidates]
     _reject_unstable(table)
     ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
     if not ok:
@@ -291,8 +346,11 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     for w in warnings:
         log.warning(w)
     model = make_model(best["kind"], **best["params"])
-    if isinstance(model, LinearParamH) or getattr(model, "joint_extra", False):
-        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths))
+    if isinstance(model, LinearParamH):
+        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds)
+        extra_coef = model.extra_coef_
+    elif getattr(model, "joint_extra", False):
+        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds)
         extra_coef = model.extra_coef_
     else:
         i0 = int(np.flatnonzero(free)[0])
