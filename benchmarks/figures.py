@@ -32,9 +32,11 @@ DATES = {
     "cross_device": "2026-11-26",
     "first_contact_rate_kp": "2026-11-26",
     "whole_device": "2026-11-26",
+    "whole_device_hold_rows": "2026-11-26",
+    "hold_rows": "2026-11-26",
     "gap_stages": "2026-11-24",
     "gap_tip": "2026-11-24",
-    "stage_chain": "2026-11-24",
+    "stage_chain": "2026-11-26",
     "external": "2026-11-24",
 }
 COMMANDS = {
@@ -44,6 +46,9 @@ COMMANDS = {
                              "--out benchmarks/cross_device/first_contact_rate_kp/{protocol}",
     "whole_device": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                     "--out benchmarks/cross_device/whole_device/thesis",
+    "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
+                              "--out benchmarks/cross_device/whole_device/thesis_hold_rows",
+    "hold_rows": "python benchmarks/hold_rows.py --seeds 0-2 --holds 0,8 --jobs 2 --out benchmarks/hold_rows",
     "gap_stages": "selfsense gap blind --n 1000 --seed 7 --jobs 2 --out benchmarks/gap_stages",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
@@ -159,7 +164,30 @@ def cross_device_figures() -> list[Fig]:
             # the whole-device randomisation on the thesis protocol, five families: its first contact
             + _device_table_figures("benchmarks/cross_device/whole_device/thesis/cross_device.csv",
                                     "whole-device randomisation, thesis calibration, first contact",
-                                    COMMANDS["whole_device"], DATES["whole_device"]))
+                                    COMMANDS["whole_device"], DATES["whole_device"])
+            # the same 100 devices scored again after the hold rows of the H(q) fit (docs/method.md 6b')
+            + _device_table_figures("benchmarks/cross_device/whole_device/thesis_hold_rows/cross_device.csv",
+                                    "whole-device randomisation, thesis calibration, with the hold rows",
+                                    COMMANDS["whole_device_hold_rows"], DATES["whole_device_hold_rows"]))
+
+
+def hold_rows_figures() -> list[Fig]:
+    """The hold rows of the H(q) fit against none, same devices and data (benchmarks/hold_rows.py)."""
+    src = "benchmarks/hold_rows/records.jsonl"
+    recs = [json.loads(x) for x in (ROOT / src).read_text().splitlines() if x.strip()]
+    out = []
+    for hold in sorted({r["hold_s"] for r in recs}):
+        rs = [r for r in recs if r["hold_s"] == hold]
+        med = {m: (statistics.median(r[m]["displacement_pct"] for r in rs),
+                   statistics.median(r[m]["force_pct"] for r in rs)) for m in ("off", "auto")}
+        better = sum(r["auto"]["displacement_pct"] < 0.9 * r["off"]["displacement_pct"] for r in rs)
+        worse = sum(r["auto"]["displacement_pct"] > 1.1 * r["off"]["displacement_pct"] for r in rs)
+        out.append(Fig(f"hold rows of the H(q) fit, thesis protocol, holds of {hold:g} s ({len(rs)} devices, five "
+                       "families, clean and drift): median displacement / force without -> with; devices better / "
+                       "worse by > 10 %", f"{med['off'][0]:.2f} / {med['off'][1]:.2f} % -> {med['auto'][0]:.2f} / "
+                       f"{med['auto'][1]:.2f} %; {better} / {worse}", "", "measured", src, COMMANDS["hold_rows"],
+                       DATES["hold_rows"]))
+    return out
 
 
 def stage_chain_figures() -> list[Fig]:
@@ -269,7 +297,8 @@ def collect() -> dict[str, list[Fig]]:
     res = results_figures()
     return {"speed": res["speed"], "bundled": res["bundled"], "realtime": realtime_figures(),
             "cross_device": cross_device_figures(),
-            "stage_chain": stage_chain_figures(), "gap": gap_figures(), "external": external_figures()}
+            "stage_chain": stage_chain_figures() + hold_rows_figures(), "gap": gap_figures(),
+            "external": external_figures()}
 
 
 TITLES = {"cross_device": "Accuracy across virtual devices (thesis Table 3 per truth family)",

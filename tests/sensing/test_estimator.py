@@ -168,6 +168,12 @@ def test_hold_rows_read_every_trial_s_v_and_q_and_never_a_validation_reference(d
     assert not np.allclose(a.hysteresis_.coef_, c.hysteresis_.coef_)
     off = SelfSensingEstimator(config=SensingConfig(**{**cfg.__dict__, "hold_rows": "off"}), rig=RIG).fit(ramped, meta)
     assert off.fit_report_["hysteresis"]["hold_rows"]["applied"] is False
+    # the gap diagnostic's view: a member of the chain it can force off (the same fit as the config switch)
+    from selfsense.gap.counterfactual import adopted_members
+
+    forced = SelfSensingEstimator(config=cfg, rig=RIG, members={"hold_rows": "off"}).fit(ramped, meta)
+    assert adopted_members(c)["hold_rows"] and not adopted_members(forced)["hold_rows"]
+    np.testing.assert_array_equal(forced.hysteresis_.coef_, off.hysteresis_.coef_)
     with pytest.raises(ValueError, match="hold_rows"):
         SensingConfig(hold_rows="on")
 

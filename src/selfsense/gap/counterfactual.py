@@ -141,8 +141,10 @@ def adopted_members(fitted) -> dict:
     """member -> whether the fitted estimator carries it (the Table 3 configuration)."""
     if fitted is None or not hasattr(fitted, "members"):
         return {}
+    hold_rows = (getattr(fitted, "fit_report_", {}) or {}).get("hysteresis", {}).get("hold_rows", {})
     return {"leakage": bool(getattr(fitted, "leakage_s_", 0.0)), "offset_drift": bool(getattr(fitted, "offset_drift_",
-                                                                                              False))}
+                                                                                              False)),
+            "hold_rows": bool(hold_rows.get("applied", False))}
 
 
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
@@ -262,7 +264,8 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
     out = {"table3": base, "members": {}}
     on = [m for m, a in carried.items() if a]
     for m, a in carried.items():
-        row = {"adopted": a, "source": drift.get("source" if m == "leakage" else "offset_drift_source", "none")}
+        row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
+                                        drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             without = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off"}))
             row.update({"without": without, "contribution": without["mean"] - base["mean"]})

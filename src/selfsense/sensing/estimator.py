@@ -404,9 +404,11 @@ class SelfSensingEstimator:
 
     config: SensingConfig = field(default_factory=SensingConfig)
     rig: Any = None
-    #: charge-link members forced on or off (:mod:`selfsense.chain.charge`): ``{"leakage": "auto"|"on"|"off",
-    #: "offset_drift": "auto"|"on"|"off"}``; "auto" (the default) lets the calibration data and the reference-free
-    #: hold evidence decide (``drift: auto``); the gap diagnostic forces a member to score the chain with it
+    #: chain members forced on or off: the charge link's ``"leakage"`` and ``"offset_drift"``
+    #: (:mod:`selfsense.chain.charge`; "auto" | "on" | "off") and the H link's ``"hold_rows"`` (the creep of H from
+    #: the holds of every trial, docs/method.md 6b'; "off" drops them whatever ``hold_rows`` configures); "auto" (the
+    #: default) lets the calibration data and the reference-free hold evidence decide; the gap diagnostic forces a
+    #: member off to score the chain without it
     members: Mapping[str, str] = field(default_factory=dict)
     #: the H(q) candidates ``((kind, params), ...)`` of the blocked-CV selection; empty (the default): those of the
     #: configured ``h_model``. ``compare_modes`` passes the straight line and the pipeline's selected candidate, so that
@@ -677,14 +679,15 @@ class SelfSensingEstimator:
     def _member_modes(self) -> dict:
         """The charge-link members' modes: ``members`` forced values over ``drift`` (auto | off)."""
         out = {}
-        for k in ("leakage", "offset_drift"):
+        for k in ("leakage", "offset_drift", "hold_rows"):
             m = str(self.members.get(k, "auto"))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
             out[k] = m
         unknown = sorted(set(self.members) - set(out))
         if unknown:
-            raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift")
+            raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift, "
+                             f"hold_rows")
         return out
 
     def _identify_h(self, cal_trials, cal, free, slope):
@@ -764,7 +767,7 @@ class SelfSensingEstimator:
         from selfsense.chain.charge import find_holds
         from selfsense.hysteresis.models.holds import HoldSet
 
-        if self.config.hold_rows == "off":
+        if self.config.hold_rows == "off" or self._member_modes()["hold_rows"] == "off":
             return None
         hs = HoldSet(extras=[] if drift_cols else None)
         for tid in sorted(getattr(self, "_all_trials", {}) or {}):
@@ -790,7 +793,8 @@ class SelfSensingEstimator:
 
     def _hold_rows_report(self, holds, model) -> dict:
         if holds is None:
-            why = "off (config hold_rows: off)" if self.config.hold_rows == "off" else "no hold in any trial"
+            why = ("off (config hold_rows: off)" if self.config.hold_rows == "off" else
+                   "off (member forced off)" if self._member_modes()["hold_rows"] == "off" else "no hold in any trial")
             return {"applied": False, "note": why}
         fitted = isinstance(model, LinearParamH) or getattr(model, "joint_extra", False)
         return {**holds.summary(), "applied": True, "fitted": fitted,
