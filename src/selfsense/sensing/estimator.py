@@ -798,7 +798,7 @@ class SelfSensingEstimator:
             return {"applied": False, "note": why}
         fitted = isinstance(model, LinearParamH) or getattr(model, "joint_extra", False)
         return {**holds.summary(), "applied": True, "fitted": fitted,
-                "note": (f"{holds.summary()['n_holds']} holds of {len(holds.names)} trials (V and Q only) "
+                "note": (f"{holds.summary()['n_holds']} holds of {len(holds.names)} trials "
                          + ("fitted with the calibration rows and scored in the selection" if fitted else
                             "scored in the selection; the selected model does not take them in its fit"))}
 
