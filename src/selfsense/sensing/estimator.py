@@ -460,11 +460,10 @@ class SelfSensingEstimator:
         # of a validation trial is read), before any calibration-only transform
         from selfsense.chain.charge import hold_evidence
 
-        self.hold_evidence_ = hold_evidence(
-            {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}).to_dict()
-        cal_trials = {t: trials[t] for t in cal.index}
-        # V, Q and relay of every trial for the reference-free hold rows of the H(q) fit (_hold_set)
+        # (the same V, Q and relay of every trial give the hold rows of the H(q) fit, _hold_set)
         self._all_trials = {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}
+        self.hold_evidence_ = hold_evidence(self._all_trials).to_dict()
+        cal_trials = {t: trials[t] for t in cal.index}
 
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
