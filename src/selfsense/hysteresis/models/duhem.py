@@ -117,23 +117,14 @@ class DuhemH:
 
     def _hold_rows(self, holds, c, dt: float, n_cal: int, n_cols: int):
         """Weighted hold rows of the linear part: differences of ``[creep bank | 1]`` within each hold and of the
-        target minus the fitted Duhem map (:mod:`selfsense.hysteresis.models.holds`)."""
-        from .holds import _stride_and_weight
+        target minus the fitted Duhem map (:func:`selfsense.hysteresis.models.holds.difference_rows`)."""
+        from .holds import difference_rows
 
-        s, w = _stride_and_weight(holds, n_cal)
-        Ls, rs, cache = [], [], {}
-        for i, idx, a0, _ in holds.rows(s):
-            if i not in cache:
-                u = self._u(holds.qs[i])
-                cache[i] = (self._linear_cols(u, dt, s), self._run(u, c, s)[0])
-            Lc, Vd = cache[i]
-            y = np.asarray(holds.ys[i], float)
-            D = Lc[idx // s] - Lc[a0 // s]
-            Ls.append(w * np.column_stack([D, np.zeros((idx.size, n_cols - D.shape[1])), holds.extra_rows(i, idx, a0)]))
-            rs.append(w * ((y[idx] - y[a0]) - (Vd[idx // s] - Vd[a0 // s])))
-        if not Ls:
-            return np.zeros((0, n_cols + holds.n_extra())), np.zeros(0)
-        return np.vstack(Ls), np.concatenate(rs)
+        def per_trial(i, s):
+            u = self._u(holds.qs[i])
+            return self._linear_cols(u, dt, s), self._run(u, c, s)[0]
+
+        return difference_rows(holds, n_cal, n_cols, per_trial)[:2]
 
     def _fit(self, q, v, dt, extra, row_mask, holds=None) -> "DuhemH":
         from scipy.optimize import least_squares

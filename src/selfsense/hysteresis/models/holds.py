@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["HoldSet", "hold_design", "hold_residual"]
+__all__ = ["HoldSet", "difference_rows", "hold_design", "hold_residual"]
 
 
 @dataclass
@@ -108,27 +108,34 @@ def _stride_and_weight(holds: HoldSet, n_cal_rows: int) -> tuple[int, float]:
     return s, float(np.sqrt(s))
 
 
-def hold_design(model, holds: HoldSet, dt: float, n_cal_rows: int, n_cols: int):
-    """``(Xh, yh, hold_id)`` of a model linear in its parameters (:class:`~selfsense.hysteresis.models.LinearParamH`,
-    prepared on the calibration rows): weighted difference rows ``w (x_i - x_a)``, ``w (y_i - y_a)`` of every hold,
-    padded with zeros to ``n_cols`` columns (the extra columns of the calibration rows do not act on a hold), then
-    the :meth:`HoldSet.n_extra` hold-only columns; and the running index of each row's hold (for the CV folds)."""
+def difference_rows(holds: HoldSet, n_cal_rows: int, n_cols: int, per_trial):
+    """``(Xh, yh, hold_id)``: the weighted difference rows of every hold, ``w [x_i - x_a | 0 | e_i - e_a]`` and
+    ``w ((y_i - y_a) - (p_i - p_a))``. ``per_trial(i, stride)`` gives trial ``i``'s columns ``x`` on the grid
+    ``0, stride, ...`` of its record and an output ``p`` already explained on that grid (or None); ``x`` is padded
+    with zeros to ``n_cols`` columns (the extra columns of the calibration rows do not act on a hold), then come the
+    :meth:`HoldSet.n_extra` hold-only columns ``e``; and the running index of each row's hold (for the CV folds)."""
     s, w = _stride_and_weight(holds, n_cal_rows)
     Xs, ys, ids = [], [], []
-    designs = {}
+    cache = {}
     for i, idx, a0, h in holds.rows(s):
-        if i not in designs:
-            designs[i] = model.design(holds.qs[i], dt, s)[0]
-        X = designs[i]
+        if i not in cache:
+            cache[i] = per_trial(i, s)
+        X, p = cache[i]
         y = np.asarray(holds.ys[i], float)
         D = X[idx // s] - X[a0 // s]
-        D = np.column_stack([D, np.zeros((idx.size, n_cols - D.shape[1])), holds.extra_rows(i, idx, a0)])
-        Xs.append(w * D)
-        ys.append(w * (y[idx] - y[a0]))
+        Xs.append(w * np.column_stack([D, np.zeros((idx.size, n_cols - D.shape[1])), holds.extra_rows(i, idx, a0)]))
+        dy = y[idx] - y[a0]
+        ys.append(w * (dy if p is None else dy - (p[idx // s] - p[a0 // s])))
         ids.append(np.full(idx.size, h))
     if not Xs:
         return np.zeros((0, n_cols + holds.n_extra())), np.zeros(0), np.zeros(0, int)
     return np.vstack(Xs), np.concatenate(ys), np.concatenate(ids)
+
+
+def hold_design(model, holds: HoldSet, dt: float, n_cal_rows: int, n_cols: int):
+    """:func:`difference_rows` of a model linear in its parameters
+    (:class:`~selfsense.hysteresis.models.LinearParamH`, prepared on the calibration rows): its design matrix."""
+    return difference_rows(holds, n_cal_rows, n_cols, lambda i, s: (model.design(holds.qs[i], dt, s)[0], None))
 
 
 def hold_residual(model, holds: HoldSet, dt: float, n_cal_rows: int):
