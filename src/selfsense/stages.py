@@ -281,15 +281,9 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                 ests[(h_model, ident, mode)] = pipeline
                 reused = (h_model, ident, mode)
                 continue
-            cands = ()
-            if pipeline is not None and h_model == "auto" and pipeline.config.h_model == "auto":
-                # the other calibration mode of the selected model: the H form the pipeline's blocked CV selected
-                # (beside the straight line it must beat), refitted in this mode's gauge -- not a second selection
-                chosen = next((r for r in pipeline.fit_report_.get("hysteresis", {}).get("selection") or []
-                               if r.get("selected")), None)
-                if chosen is not None:
-                    cands = (("linear", {}),) + (((chosen["kind"], dict(chosen["params"])),)
-                                                 if chosen["kind"] != "linear" else ())
+            # the other calibration mode of the selected model: the H form the pipeline's blocked CV selected
+            # (beside the straight line it must beat), refitted in this mode's gauge -- not a second selection
+            cands = pipeline.selected_form() if pipeline is not None and h_model == "auto" else ()
             ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig, h_candidates=cands).fit(sigs, meta)
         pts: dict = {c: [] for c in combos}
         left_out = {}

@@ -128,8 +128,14 @@ def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> 
     return new, outc
 
 
-def _make(make_estimator: Callable, rig, members: dict | None = None):
+def _make(make_estimator: Callable, rig, members: dict | None = None, form: tuple = ()):
+    """An unfitted estimator of the configuration, with ``members`` forced and, when ``form`` is given (the fitted
+    estimator's :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.selected_form`), its H(q) form held: a
+    recalibration refits the selected form beside the straight line instead of repeating the whole selection, so
+    that before and after differ by the correction or the member alone, not by a change of the selected form."""
     est = make_estimator(rig)
+    if form and hasattr(est, "h_candidates"):
+        est.h_candidates = tuple(form)
     if members:
         if not hasattr(est, "members"):
             raise TypeError(f"{type(est).__name__} carries no chain members; cannot force {sorted(members)}")
@@ -147,12 +153,17 @@ def adopted_members(fitted) -> dict:
             "hold_rows": bool(hold_rows.get("applied", False))}
 
 
+def _form_of(fitted) -> tuple:
+    """The fitted estimator's selected H(q) form (held in every recalibration of the diagnostic), or ``()``."""
+    return fitted.selected_form() if fitted is not None and hasattr(fitted, "selected_form") else ()
+
+
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
-              estimator=None, members: dict | None = None):
+              estimator=None, members: dict | None = None, form: tuple = ()):
     """Per validation trial: thesis Table 3's error (mean |estimate - reference| in % of the trial's reference
     range, every finite sample, :func:`selfsense.report.tables.trial_errors`) and the same per contiguous block
     (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted)."""
-    est = estimator if estimator is not None else _make(make_estimator, rig, members).fit(trials, meta)
+    est = estimator if estimator is not None else _make(make_estimator, rig, members, form).fit(trials, meta)
     rows = {}
     for t, m in meta.iterrows():
         if m["role"] != "validation":
@@ -197,6 +208,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     names = [e["effect"] for e in verdict["effects"]][:max_effects]
     tabs: dict = {}
     carried = adopted_members(fitted)
+    form = _form_of(fitted)
 
     def chain_of(S) -> dict:  # chain members switched on by S (only those the fitted estimator does not carry yet)
         if not can_force:
@@ -214,7 +226,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             # estimator costs tens of seconds), which ignores the small change of its coefficients
             reuse = fitted is not None and (not S or (not refit_outputs and not inputs_touched(S)))
             tabs[S] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None,
-                                members=chain_of(S))
+                                members=chain_of(S), form=form)
         return tabs[S]
 
     base = table(frozenset())
@@ -259,6 +271,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
     carried = adopted_members(fitted)
     if not carried:
         return {}
+    form = _form_of(fitted)
     base = _summary(tip_table(trials, meta, rig, make_estimator, estimator=fitted))
     drift = fitted.fit_report_.get("hysteresis", {}).get("drift", {})
     out = {"table3": base, "members": {}}
@@ -267,11 +280,12 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
         row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
-            without = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off"}))
+            without = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off"}, form=form))
             row.update({"without": without, "contribution": without["mean"] - base["mean"]})
         out["members"][m] = row
     if len(on) > 1:
-        none = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off" for m in on}))
+        none = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off" for m in on},
+                                        form=form))
         out["without_all"] = none
         out["contribution_all"] = none["mean"] - base["mean"]
     out["note"] = drift.get("note", "")

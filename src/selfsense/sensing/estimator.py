@@ -430,6 +430,20 @@ class SelfSensingEstimator:
     drift_hysteresis_: Any = field(default=None, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
+    def selected_form(self) -> tuple:
+        """The fitted H(q) form as a candidate list for a refit of this estimator's configuration on changed data
+        or with a member toggled: ``(("linear", {}), (kind, params))`` -- the straight line the form must beat and
+        the form the blocked CV selected -- or ``()`` (the whole selection again) when the configuration names no
+        selection or the fit recorded none. ``compare_modes`` and the gap diagnostic's recalibrations pass it as
+        ``h_candidates``."""
+        if self.config.h_model != "auto":
+            return ()
+        chosen = next((r for r in (self.fit_report_ or {}).get("hysteresis", {}).get("selection") or []
+                       if r.get("selected")), None)
+        if chosen is None:
+            return ()
+        return (("linear", {}),) + (((chosen["kind"], dict(chosen["params"])),) if chosen["kind"] != "linear" else ())
+
     def _calibration_set(self, trials, meta):
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
         cal = meta[meta["role"] == "calibration"]
