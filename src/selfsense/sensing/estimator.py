@@ -262,6 +262,13 @@ def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:
     return df.iloc[::step] if step > 1 else df
 
 
+def _with_column(df: pd.DataFrame, col: str, values: np.ndarray) -> pd.DataFrame:
+    """A copy of ``df`` (attrs kept) with ``col`` replaced."""
+    out = df.copy()
+    out[col] = values
+    return out
+
+
 def _trial_dt(df: pd.DataFrame) -> float:
     t = df["t"].to_numpy(dtype=float)
     return float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
@@ -405,8 +412,10 @@ class SelfSensingEstimator:
     config: SensingConfig = field(default_factory=SensingConfig)
     rig: Any = None
     #: chain members forced on or off: the charge link's ``"leakage"`` and ``"offset_drift"``
-    #: (:mod:`selfsense.chain.charge`; "auto" | "on" | "off") and the H link's ``"hold_rows"`` (the creep of H from
-    #: the holds of every trial, docs/method.md 6b'; "off" drops them whatever ``hold_rows`` configures); "auto" (the
+    #: (:mod:`selfsense.chain.charge`; "auto" | "on" | "off"), the voltage link's ``"amplifier"`` (the actuator voltage
+    #: rebuilt where the HV amplifier sits at its current limit, :mod:`selfsense.chain.amplifier`) and the H link's
+    #: ``"hold_rows"`` (the creep of H from the holds of every trial, docs/method.md 6b'; "off" drops them whatever
+    #: ``hold_rows`` configures); "auto" (the
     #: default) lets the calibration data and the reference-free hold evidence decide; the gap diagnostic forces a
     #: member off to score the chain without it
     members: Mapping[str, str] = field(default_factory=dict)
@@ -428,6 +437,10 @@ class SelfSensingEstimator:
     hold_evidence_: dict = field(default_factory=dict, init=False)
     #: the H(q) fitted beside the per-trial drift columns; the rest-segment drift estimate uses it (None: hysteresis_)
     drift_hysteresis_: Any = field(default=None, init=False, repr=False)
+    #: the voltage link's amplifier member: the current limit found in the data and whether it is applied
+    amplifier_: dict = field(default_factory=dict, init=False)
+    #: the H(q) the current-limited voltage is rebuilt with (fitted where V is observed; None: not applied)
+    voltage_hysteresis_: Any = field(default=None, init=False, repr=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -470,6 +483,9 @@ class SelfSensingEstimator:
         if missing:
             raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
         self.calibration_trials_ = list(cal.index)
+        # the voltage link (V, Q, u_cmd and V_s of every trial, never a reference): where the amplifier sits at its
+        # current limit the actuator voltage is rebuilt before anything reads V
+        trials = self._voltage_link(trials, meta)
         # reference-free evidence of the charge link from EVERY trial given (V, Q and the relay only: no reference
         # of a validation trial is read), before any calibration-only transform
         from selfsense.chain.charge import hold_evidence
@@ -540,7 +556,8 @@ class SelfSensingEstimator:
                 self.hysteresis_, rep = _fit_thesis_modified_pi(cfg, Q, y, dt)
         rep["trial"] = free_id
         self._all_trials = None
-        self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
+        self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", [])),
+                            "amplifier": dict(self.amplifier_)}
         self._fit_ranges(cal_trials, cal)
         return self
 
@@ -692,7 +709,7 @@ class SelfSensingEstimator:
     def _member_modes(self) -> dict:
         """The charge-link members' modes: ``members`` forced values over ``drift`` (auto | off)."""
         out = {}
-        for k in ("leakage", "offset_drift", "hold_rows"):
+        for k in ("leakage", "offset_drift", "hold_rows", "amplifier"):
             m = str(self.members.get(k, "auto"))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
@@ -700,7 +717,7 @@ class SelfSensingEstimator:
         unknown = sorted(set(self.members) - set(out))
         if unknown:
             raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift, "
-                             f"hold_rows")
+                             f"hold_rows, amplifier")
         return out
 
     def _identify_h(self, cal_trials, cal, free, slope):
@@ -714,7 +731,7 @@ class SelfSensingEstimator:
         drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
         self.offset_drift_ = False
         self.drift_hysteresis_ = None
-        if cfg.drift == "auto" or any(m != "auto" for m in self._member_modes().values()):
+        if cfg.drift == "auto" or any(m != "auto" for k, m in self._member_modes().items() if k != "amplifier"):
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
             self.offset_drift_ = bool(drift_info["offset_drift_applied"])
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
@@ -936,6 +953,79 @@ class SelfSensingEstimator:
             info.update({"a_c_per_s": float(c[0]), "b_c_per_s2": float(c[1])})
         return dQ, info
 
+    # ------------------------------------------------------------------ voltage link
+    def _voltage_link(self, trials, meta):
+        """The amplifier member of the voltage link (:mod:`selfsense.chain.amplifier`): the current limit from the
+        shunt current of every trial (a reference-free plateau test); where it is supported (``members['amplifier']``
+        "auto") or forced ("on"), the actuator voltage of the current-limited samples is rebuilt with ``V - H(q)``
+        linear in the charge between the anchors (thesis eqs. 24-27: V_p is affine in q at a given load) and the
+        reference H(q) of :meth:`_anchor_h`. Returns the trials to fit on."""
+        from selfsense.chain.amplifier import identify_current_limit, rebuild_voltage
+
+        mode = self._member_modes()["amplifier"]
+        self.voltage_hysteresis_ = None
+        self.amplifier_ = {"mode": mode, "applied": False}
+        if mode == "off":
+            self.amplifier_["note"] = "amplifier member forced off: V = amplifier_gain u_cmd - V_s (eq. 56)"
+            return trials
+        if any("V_s" not in df or "u_cmd" not in df for df in trials.values()):
+            self.amplifier_["note"] = "no V_s / u_cmd columns: V as given"
+            return trials
+        R, gain = _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain")
+        every = {t: df for t, df in trials.items() if t in meta.index}
+        lim = identify_current_limit(every, R)
+        self.amplifier_.update(lim.to_dict())
+        if not (lim.supported or (mode == "on" and lim.i_lim > 0)):
+            return trials
+        self.voltage_hysteresis_ = self._anchor_h(trials, meta, lim)
+        self.amplifier_.update({"applied": True, "source": "forced" if mode == "on" else "current plateau"})
+        return {t: self._with_voltage(df) for t, df in trials.items()}
+
+    def _anchor_h(self, trials, meta, lim):
+        """The reference H(q) of the voltage rebuild: a Preisach model (12 x 12 grid, 6 plays, creep) fitted on the
+        joint calibration rows (:meth:`_h_segments`, the eq. 55 gauge) of the samples where V is observed, i.e. off
+        the current plateau; the limited samples give no row, their charge still drives the operators. With the
+        Preisach memory the reversal points the anchors sit on carry the Everett function between them. A linear
+        term in q is a gauge of H and does not change the rebuild (V - H is interpolated linearly in q)."""
+        from selfsense.chain.amplifier import limited_mask
+        from selfsense.hysteresis.models import PreisachH
+
+        R = _rig_get(self.rig, "shunt_resistance_ohm")
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        cal = meta[meta["role"] == "calibration"]
+        seen = {t: _with_column(trials[t], "V", np.where(limited_mask(trials[t], R, lim.i_lim, lim.band), np.nan,
+                                                         trials[t]["V"].to_numpy(dtype=float))) for t in cal.index}
+        p = _rig_params(self.rig)
+        qs, ys, ex, _, _, dt = self._h_segments(seen, cal, 1.0 / (p["n_A"] * p["C_p"]), 0.0, drift_cols=False)
+        model = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
+        model.fit(qs, ys, dt, extra=ex)
+        self.amplifier_["h_rows"] = int(model.fit_report_.get("n_samples", 0))
+        return model
+
+    def _with_voltage(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial with its current-limited actuator voltage rebuilt (unchanged when the member is not applied)."""
+        if not self.amplifier_.get("applied") or "V_s" not in df or "u_cmd" not in df:
+            return df
+        from selfsense.chain.amplifier import AmplifierLimit, rebuild_voltage
+
+        lim = AmplifierLimit(**{k: self.amplifier_[k] for k in ("i_lim", "band", "fraction", "longest_run_s",
+                                                                "supported", "note")})
+        H0 = self.voltage_hysteresis_
+        h_of = None if H0 is None else (lambda d: _eval_h(H0, d["q"].to_numpy(dtype=float), _trial_dt(d)))
+        V = rebuild_voltage(df, _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain"),
+                            lim, h_of)
+        return _with_column(df, "V", V)
+
+    def _voltage_observed(self, df: pd.DataFrame) -> np.ndarray:
+        """Samples whose V is observed (off the current plateau when the amplifier member is applied): the rows of the
+        coefficient regression, so that the rebuild's error does not enter the coefficients."""
+        if not self.amplifier_.get("applied") or "V_s" not in df:
+            return np.ones(len(df), bool)
+        from selfsense.chain.amplifier import limited_mask
+
+        return ~limited_mask(df, _rig_get(self.rig, "shunt_resistance_ohm"), self.amplifier_["i_lim"],
+                             self.amplifier_["band"])
+
     def _h(self, Q: np.ndarray, df: pd.DataFrame) -> np.ndarray:
         return _eval_h(self.hysteresis_, Q, _trial_dt(df))
 
@@ -945,6 +1035,7 @@ class SelfSensingEstimator:
         if self.hysteresis_ is None:
             raise RuntimeError("fit_coefficients: calibrate H(q) first (fit_hysteresis)")
         cal, cal_trials = self._calibration_set(trials, meta)
+        cal_trials = {t: self._with_voltage(df) for t, df in cal_trials.items()}
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
         cfg = self.config
@@ -952,7 +1043,7 @@ class SelfSensingEstimator:
         Xd, yd, Xf, yf = [], [], [], []
         for tid, row in cal.iterrows():
             df = cal_trials[tid]
-            m = df["relay"].to_numpy() < 0.5
+            m = (df["relay"].to_numpy() < 0.5) & self._voltage_observed(df)
             feats = self._regressors(df)[m]
             if row["reference"] == "displacement":
                 ok = np.isfinite(df["dx_ref"].to_numpy()[m])
@@ -1057,6 +1148,7 @@ class SelfSensingEstimator:
         """
         if self.hysteresis_ is None:
             raise RuntimeError("SelfSensingEstimator.estimate called before fit()")
+        df = self._with_voltage(df)
         X = self._regressors(df)
         dx_raw, f_raw = self._predict_raw(X)
         relay = df["relay"].to_numpy() >= 0.5
@@ -1096,6 +1188,9 @@ class SelfSensingEstimator:
             "offset_drift": self.offset_drift_,
             "members": dict(self.members),
             "drift_hysteresis": (_h_to_dict(self.drift_hysteresis_) if self.drift_hysteresis_ is not None else None),
+            "amplifier": dict(self.amplifier_),
+            "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
+                                   else None),
         }
 
     @classmethod
@@ -1116,4 +1211,6 @@ class SelfSensingEstimator:
         est.calibration_trials_ = list(d.get("calibration_trials", []))
         est.leakage_s_ = float(d.get("leakage_s", 0.0))
         est.offset_drift_ = bool(d.get("offset_drift", False))
+        est.amplifier_ = dict(d.get("amplifier") or {})
+        est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

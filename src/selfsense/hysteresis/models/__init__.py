@@ -139,7 +139,8 @@ class LinearParamH:
         return self
 
     def fit(self, q, v, dt: float, extra=None, holds=None) -> "LinearParamH":
-        """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring);
+        """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring; samples
+        with a non-finite ``v`` give no row);
         records longer than :data:`MAX_FIT_ROWS` samples in all are fitted on every k-th sample. ``holds``
         (:class:`~selfsense.hysteresis.models.holds.HoldSet`) adds the reference-free hold rows of every trial."""
         qs, vs = _segments(q, v)
@@ -168,6 +169,9 @@ class LinearParamH:
             X = np.vstack([np.column_stack([X, np.zeros((len(X), n_hx))]), Xh])
             y, n_hold = np.concatenate([y, yh]), len(yh)
             pen = np.concatenate([pen, np.zeros(n_hx, bool)])
+        ok = np.isfinite(y)   # a sample whose target is not observed gives no row (its charge still drives the operators)
+        if not ok.all():
+            X, y = X[ok], y[ok]
         coef = ridge_lstsq(X, y, pen, self.ridge, lower=self._bounds(X.shape[1]))
         resid = X @ coef - y
         coef = coef[:len(coef) - n_hx]

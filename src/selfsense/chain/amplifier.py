@@ -1,0 +1,172 @@
+"""The voltage link of the stage chain: u_cmd -> V (thesis ``000_18d138f03f1777c3.txt`` eq. 56) and its amplifier
+member.
+
+The pipeline takes the actuator voltage as ``V = V_c - V_s`` with ``V_c = amplifier_gain * u_cmd`` (eq. 56): the HV
+amplifier is assumed to follow its command. An amplifier at its **current limit** does not: it delivers a fixed
+current ``I_lim`` and its output voltage is whatever the actuator makes of that charge, so ``V`` lags the command
+(tens of volts on a fast drive) while the logged ``V = gain u_cmd - V_s`` still shows the command. The charge stays
+right (the shunt measures the current the amplifier delivers).
+
+What the run-time signals show (no reference is read):
+
+* **the limit**: while limited, the shunt current sits on a plateau ``|i| = I_lim`` (flat to the in-amp noise);
+  without a limit ``|i|`` only touches its largest values at the peaks of ``C dV/dt``. :func:`identify_current_limit`
+  takes the plateau over the relay-open samples of every trial and calls the limit *supported* when it holds at
+  least :data:`PLATEAU_MIN_FRACTION` of them in runs of at least :data:`RUN_MIN_S`;
+* **where V is still known** (*anchors*): every sample off the plateau (the amplifier regulates, ``V = gain u_cmd -
+  V_s``), and the instants where the limited current reverses sign: the current reverses when the command crosses
+  the actuator voltage (``V_c - V = R i`` changes sign), taken at the middle of the sample interval of the reversal;
+* **what V does between anchors**: the Goldfarb-Celanovic actuator (thesis eqs. 24-27) splits
+  ``V = V_p + H(q)``. ``V_p`` is the voltage of the linear piezo element and the mechanism is linear at a given tip
+  load, so ``V_p`` is affine in the charge while the load does not change; the hysteretic part is the calibrated
+  ``H(q)``. Between two anchors :func:`rebuild_voltage` therefore interpolates ``V - H(q)`` linearly in ``q`` and
+  adds ``H(q)`` back (with ``H = 0``: ``V`` linear in ``q``, a constant incremental capacitance).
+
+A slew limit of the amplifier that binds without the current limit is not rebuilt: off the current plateau the
+link keeps eq. (56).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["AmplifierLimit", "shunt_current", "identify_current_limit", "limited_mask", "rebuild_voltage",
+           "PLATEAU_MIN_FRACTION", "RUN_MIN_S"]
+
+#: the current plateau must hold at least this share of the relay-open samples of all trials (effect-free virtual
+#: devices: <= 2 % of samples within the band of their largest current, at the peaks of C dV/dt)
+PLATEAU_MIN_FRACTION = 0.05
+#: ... in runs of at least this duration [s]
+RUN_MIN_S = 0.05
+#: band of the plateau: this many in-amp noise standard deviations, at least BAND_REL of the limit
+BAND_SIGMA, BAND_REL = 5.0, 0.005
+
+
+@dataclass
+class AmplifierLimit:
+    """The current limit seen in the data: ``i_lim`` [A], the plateau band [A], the plateau's share of the relay-open
+    samples, the longest plateau run [s] and whether the data support it."""
+    i_lim: float = 0.0
+    band: float = 0.0
+    fraction: float = 0.0
+    longest_run_s: float = 0.0
+    supported: bool = False
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(self).items()}
+
+
+def shunt_current(df: pd.DataFrame, shunt_resistance_ohm: float) -> np.ndarray:
+    """Shunt current ``i = (V_s - offset) / R`` [A] (thesis eq. 57 before the integral; the relay-segment offset of
+    :func:`selfsense.signals.prepare_trial`)."""
+    off = float(df.attrs.get("v_s_offset_v", 0.0) or 0.0)
+    return (df["V_s"].to_numpy(dtype=float) - off) / float(shunt_resistance_ohm)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    m = np.concatenate([[0], mask.astype(np.int8), [0]])
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_ohm: float) -> AmplifierLimit:
+    """The amplifier's current limit from the shunt current of every trial (V_s and the relay only).
+
+    The top level is the 99.9th percentile of ``|i|`` over the relay-open samples; the band is
+    :data:`BAND_SIGMA` in-amp noise standard deviations (from the relay segments, where the current is zero), at least
+    :data:`BAND_REL` of that level; ``i_lim`` is the median ``|i|`` inside the band. Supported when the band holds at
+    least :data:`PLATEAU_MIN_FRACTION` of the relay-open samples and some run of band samples lasts
+    :data:`RUN_MIN_S`."""
+    a, sig, runs_s = [], [], []
+    for df in trials.values():
+        if "V_s" not in df:
+            continue
+        rel = df["relay"].to_numpy(dtype=float) >= 0.5
+        i = shunt_current(df, shunt_resistance_ohm)
+        a.append(np.abs(i[~rel]))
+        k = int(rel.sum())
+        if k >= 20:
+            sig.append(float(np.std(i[rel][k // 4:])))
+    if not a or not np.concatenate(a).size:
+        return AmplifierLimit(note="no relay-open samples with V_s")
+    a_all = np.concatenate(a)
+    top = float(np.quantile(a_all, 0.999))
+    if not top > 0:
+        return AmplifierLimit(note="no current")
+    sigma = float(np.median(sig)) if sig else 0.0
+    band = max(BAND_SIGMA * sigma, BAND_REL * top)
+    i_lim = float(np.median(a_all[a_all >= top - band]))
+    frac = float(np.mean(a_all >= i_lim - band))
+    for df in trials.values():
+        if "V_s" not in df:
+            continue
+        t = df["t"].to_numpy(dtype=float)
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
+        runs_s += [(b - a_) * dt for a_, b in _runs(m)]
+    longest = max(runs_s, default=0.0)
+    ok = frac >= PLATEAU_MIN_FRACTION and longest >= RUN_MIN_S
+    note = (f"current plateau at {i_lim * 1e3:.4g} mA holds {frac * 100:.1f} % of the relay-open samples, longest run "
+            f"{longest:.3g} s" + ("" if ok else f" (needs >= {PLATEAU_MIN_FRACTION * 100:.0f} % and "
+                                                f">= {RUN_MIN_S:g} s): no current limit"))
+    return AmplifierLimit(i_lim=i_lim, band=band, fraction=frac, longest_run_s=longest, supported=ok, note=note)
+
+
+def limited_mask(df: pd.DataFrame, shunt_resistance_ohm: float, i_lim: float, band: float) -> np.ndarray:
+    """Relay-open samples whose shunt current sits on the limit plateau ``|i| >= i_lim - band``."""
+    rel = df["relay"].to_numpy(dtype=float) >= 0.5
+    return (~rel) & (np.abs(shunt_current(df, shunt_resistance_ohm)) >= i_lim - band)
+
+
+def rebuild_voltage(df: pd.DataFrame, shunt_resistance_ohm: float, amplifier_gain: float, lim: AmplifierLimit,
+                    h_of: Callable[[pd.DataFrame], np.ndarray] | None = None) -> np.ndarray:
+    """Actuator voltage of one prepared trial with the current-limited samples rebuilt (module docstring).
+
+    Off the plateau ``V`` is the logged eq. (56) value. At a reversal of the limited current (``+I_lim`` to ``-I_lim``
+    between two samples) the command crosses the actuator voltage: the anchor is ``amplifier_gain * u_cmd`` and the
+    charge at the middle of the interval. Between anchors ``V - H(q)`` is linear in ``q``; before the first or after
+    the last anchor of a trial it continues with the median slope of the trial's bridged runs. ``h_of(df)``: the
+    calibrated ``H(q)`` on the trial's samples (None: 0)."""
+    V = df["V"].to_numpy(dtype=float).copy()
+    if not lim.supported and not lim.i_lim > 0:
+        return V
+    q = df["q"].to_numpy(dtype=float)
+    n = len(V)
+    L = limited_mask(df, shunt_resistance_ohm, lim.i_lim, lim.band)
+    if not L.any():
+        return V
+    H = np.zeros(n) if h_of is None else np.asarray(h_of(df), dtype=float)
+    u = df["u_cmd"].to_numpy(dtype=float) * float(amplifier_gain)
+    i = shunt_current(df, shunt_resistance_ohm)
+    s = np.sign(i) * L
+    # anchors: (position in samples, charge, V - H)
+    anchors = [(float(k), q[k], V[k] - H[k]) for k in np.flatnonzero(~L)]
+    for k in np.flatnonzero(L[:-1] & L[1:] & (s[:-1] * s[1:] < 0)):
+        anchors.append((k + 0.5, 0.5 * (q[k] + q[k + 1]), 0.5 * (u[k] + u[k + 1]) - 0.5 * (H[k] + H[k + 1])))
+    anchors.sort()
+    pos = np.array([a[0] for a in anchors])
+    qa = np.array([a[1] for a in anchors])
+    wa = np.array([a[2] for a in anchors])
+    W = V - H
+    idx = np.flatnonzero(L)
+    j = np.searchsorted(pos, idx)           # anchors left (j-1) and right (j) of each limited sample
+    inner = (j > 0) & (j < len(pos))
+    slopes = []
+    if inner.any():
+        lo, hi = j[inner] - 1, j[inner]
+        dq = qa[hi] - qa[lo]
+        ok = np.abs(dq) > 0
+        sl = np.where(ok, (wa[hi] - wa[lo]) / np.where(ok, dq, 1.0), 0.0)
+        k_in = idx[inner]
+        W[k_in] = np.where(ok, wa[lo] + sl * (q[k_in] - qa[lo]), wa[lo])
+        slopes = np.unique(sl[ok])
+    s_med = float(np.median(slopes)) if len(slopes) else 0.0
+    for m, ref in ((j == 0, 0), (j == len(pos), len(pos) - 1)):   # before the first / after the last anchor
+        if m.any() and len(pos):
+            k = idx[m]
+            W[k] = wa[ref] + s_med * (q[k] - qa[ref])
+    return W + H
