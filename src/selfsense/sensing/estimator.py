@@ -971,7 +971,11 @@ class SelfSensingEstimator:
         if any("V_s" not in df or "u_cmd" not in df for df in trials.values()):
             self.amplifier_["note"] = "no V_s / u_cmd columns: V as given"
             return trials
-        R, gain = _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain")
+        try:
+            R, gain = _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain")
+        except (KeyError, AttributeError, TypeError):
+            self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
+            return trials
         every = {t: df for t, df in trials.items() if t in meta.index}
         lim = identify_current_limit(every, R)
         self.amplifier_.update(lim.to_dict())
