@@ -34,11 +34,11 @@ def _fit(trials, meta, rig, mode):
 
 def test_current_limit_recovered_from_the_shunt_current(limited, twin):
     tr, me, rig, _ = limited
-    lim = identify_current_limit(tr, rig.shunt_resistance_ohm)
+    lim = identify_current_limit(tr, rig.shunt_resistance_ohm, rig.amplifier_gain)
     assert lim.supported
     assert lim.i_lim == pytest.approx(1e-3 / M, rel=0.01)
     tr0, _, rig0 = twin
-    assert not identify_current_limit(tr0, rig0.shunt_resistance_ohm).supported
+    assert not identify_current_limit(tr0, rig0.shunt_resistance_ohm, rig0.amplifier_gain).supported
 
 
 def test_rebuilt_voltage_follows_the_actuator(limited):
@@ -54,7 +54,7 @@ def test_rebuilt_voltage_follows_the_actuator(limited):
     # without H (V linear in q between anchors) the rebuild is coarser, but still far better than eq. (56)
     df = tr["val_force"]
     lin = rebuild_voltage(df, rig.shunt_resistance_ohm, rig.amplifier_gain,
-                          identify_current_limit(tr, rig.shunt_resistance_ohm))
+                          identify_current_limit(tr, rig.shunt_resistance_ohm, rig.amplifier_gain))
     assert np.mean(np.abs(lin - truth["val_force"]["V"].to_numpy())) < 0.2 * np.mean(
         np.abs(df["V"].to_numpy() - truth["val_force"]["V"].to_numpy()))
 

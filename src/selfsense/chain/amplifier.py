@@ -10,9 +10,13 @@ right (the shunt measures the current the amplifier delivers).
 What the run-time signals show (no reference is read):
 
 * **the limit**: while limited, the shunt current sits on a plateau ``|i| = I_lim`` (flat to the in-amp noise);
-  without a limit ``|i|`` only touches its largest values at the peaks of ``C dV/dt``. :func:`identify_current_limit`
+  without a limit ``|i|`` only touches its largest values at the peaks of ``C dV/dt``. A command ramp of constant
+  slope into a nearly linear capacitance also gives a flat current, but there the actuator follows the command; at
+  the limit the command runs ahead of the actuator in the direction of the current. :func:`identify_current_limit`
   takes the plateau over the relay-open samples of every trial and calls the limit *supported* when it holds at
-  least :data:`PLATEAU_MIN_FRACTION` of them in runs of at least :data:`RUN_MIN_S`;
+  least :data:`PLATEAU_MIN_FRACTION` of them in runs of at least :data:`RUN_MIN_S` and the command leads the
+  actuator voltage rebuilt without H (``V`` linear in ``q`` between anchors) by a median of at least
+  :data:`LAG_MIN` of the trial's voltage span over the plateau samples;
 * **where V is still known** (*anchors*): every sample off the plateau (the amplifier regulates, ``V = gain u_cmd -
   V_s``), and the instants where the limited current reverses sign: the current reverses when the command crosses
   the actuator voltage (``V_c - V = R i`` changes sign), taken at the middle of the sample interval of the reversal;
@@ -34,13 +38,17 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["AmplifierLimit", "shunt_current", "identify_current_limit", "limited_mask", "rebuild_voltage",
-           "PLATEAU_MIN_FRACTION", "RUN_MIN_S"]
+           "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN"]
 
 #: the current plateau must hold at least this share of the relay-open samples of all trials (effect-free virtual
 #: devices: <= 2 % of samples within the band of their largest current, at the peaks of C dV/dt)
 PLATEAU_MIN_FRACTION = 0.05
 #: ... in runs of at least this duration [s]
 RUN_MIN_S = 0.05
+#: ... and the command leads the rebuilt actuator voltage by at least this share of the voltage span (median over the
+#: plateau samples, signed with the current): 0.08-0.26 with the amplifier limits of the tip campaign's cases, below
+#: 0.002 on effect-free devices and on constant-slope command ramps
+LAG_MIN = 0.02
 #: band of the plateau: this many in-amp noise standard deviations, at least BAND_REL of the limit
 BAND_SIGMA, BAND_REL = 5.0, 0.005
 
@@ -53,6 +61,7 @@ class AmplifierLimit:
     band: float = 0.0
     fraction: float = 0.0
     longest_run_s: float = 0.0
+    lag: float = 0.0
     supported: bool = False
     note: str = ""
 
@@ -73,14 +82,15 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_ohm: float) -> AmplifierLimit:
+def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_ohm: float,
+                           amplifier_gain: float) -> AmplifierLimit:
     """The amplifier's current limit from the shunt current of every trial (V_s and the relay only).
 
     The top level is the 99.9th percentile of ``|i|`` over the relay-open samples; the band is
     :data:`BAND_SIGMA` in-amp noise standard deviations (from the relay segments, where the current is zero), at least
     :data:`BAND_REL` of that level; ``i_lim`` is the median ``|i|`` inside the band. Supported when the band holds at
     least :data:`PLATEAU_MIN_FRACTION` of the relay-open samples and some run of band samples lasts
-    :data:`RUN_MIN_S`."""
+    :data:`RUN_MIN_S` and the command leads the actuator by :data:`LAG_MIN` of the voltage span (module docstring)."""
     a, sig, runs_s = [], [], []
     for df in trials.values():
         if "V_s" not in df:
@@ -109,11 +119,27 @@ def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_
         m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
         runs_s += [(b - a_) * dt for a_, b in _runs(m)]
     longest = max(runs_s, default=0.0)
-    ok = frac >= PLATEAU_MIN_FRACTION and longest >= RUN_MIN_S
+    trial_lim = AmplifierLimit(i_lim=i_lim, band=band, supported=True)
+    leads = []
+    for df in trials.values():
+        if "V_s" not in df or "u_cmd" not in df:
+            continue
+        m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
+        if not m.any():
+            continue
+        V = df["V"].to_numpy(dtype=float)
+        rel = df["relay"].to_numpy(dtype=float) >= 0.5
+        span = float(np.ptp(V[~rel])) or 1.0
+        lin = rebuild_voltage(df, shunt_resistance_ohm, amplifier_gain, trial_lim)
+        leads.append(np.sign(shunt_current(df, shunt_resistance_ohm)[m]) * (V[m] - lin[m]) / span)
+    lag = float(np.median(np.concatenate(leads))) if leads else 0.0
+    ok = frac >= PLATEAU_MIN_FRACTION and longest >= RUN_MIN_S and lag >= LAG_MIN
     note = (f"current plateau at {i_lim * 1e3:.4g} mA holds {frac * 100:.1f} % of the relay-open samples, longest run "
-            f"{longest:.3g} s" + ("" if ok else f" (needs >= {PLATEAU_MIN_FRACTION * 100:.0f} % and "
-                                                f">= {RUN_MIN_S:g} s): no current limit"))
-    return AmplifierLimit(i_lim=i_lim, band=band, fraction=frac, longest_run_s=longest, supported=ok, note=note)
+            f"{longest:.3g} s, command ahead of the actuator by {lag * 100:.1f} % of the voltage span"
+            + ("" if ok else f" (needs >= {PLATEAU_MIN_FRACTION * 100:.0f} %, >= {RUN_MIN_S:g} s and "
+                             f">= {LAG_MIN * 100:.0f} %): no current limit"))
+    return AmplifierLimit(i_lim=i_lim, band=band, fraction=frac, longest_run_s=longest, lag=lag, supported=ok,
+                          note=note)
 
 
 def limited_mask(df: pd.DataFrame, shunt_resistance_ohm: float, i_lim: float, band: float) -> np.ndarray:

@@ -977,7 +977,7 @@ class SelfSensingEstimator:
             self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
             return trials
         every = {t: df for t, df in trials.items() if t in meta.index}
-        lim = identify_current_limit(every, R)
+        lim = identify_current_limit(every, R, gain)
         self.amplifier_.update(lim.to_dict())
         if not (lim.supported or (mode == "on" and lim.i_lim > 0)):
             return trials
@@ -1013,7 +1013,7 @@ class SelfSensingEstimator:
         from selfsense.chain.amplifier import AmplifierLimit, rebuild_voltage
 
         lim = AmplifierLimit(**{k: self.amplifier_[k] for k in ("i_lim", "band", "fraction", "longest_run_s",
-                                                                "supported", "note")})
+                                                                "lag", "supported", "note")})
         H0 = self.voltage_hysteresis_
         h_of = None if H0 is None else (lambda d: _eval_h(H0, d["q"].to_numpy(dtype=float), _trial_dt(d)))
         V = rebuild_voltage(df, _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain"),
