@@ -79,3 +79,23 @@ def test_not_adopted_without_a_limit_and_bit_identical(twin):
         assert np.array_equal(auto.estimate(tr0[t]).to_numpy(), off.estimate(tr0[t]).to_numpy())
     with pytest.raises(ValueError, match="amplifier"):
         SelfSensingEstimator(config=SensingConfig(), rig=rig0, members={"amplifier": "maybe"}).fit(tr0, me0)
+
+
+def test_the_diagnostic_and_the_stream_see_the_adopted_member(limited):
+    """One stage chain: the diagnostic's ``rate.amplifier`` is the estimator's amplifier member (its counterfactual
+    recalibrates with the member on, its chain table scores the chain without it); a stream or a C export of a model
+    that carries it is refused with the reason (the rebuild needs the sample where the limit lets go)."""
+    from selfsense.gap.counterfactual import CHAIN_MEMBERS, adopted_members
+    from selfsense.sensing.export_c import ExportError, c_sources
+    from selfsense.sensing.streaming import SelfSensingStream
+
+    tr, me, rig, _ = limited
+    est = _fit(tr, me, rig, "auto")
+    assert CHAIN_MEMBERS["rate.amplifier"] == "amplifier"
+    assert adopted_members(est)["amplifier"]
+    off = SelfSensingEstimator(config=SensingConfig(amplifier="off"), rig=rig).fit(tr, me)   # the config switch
+    assert not adopted_members(off)["amplifier"] and "config amplifier: off" in off.amplifier_["note"]
+    with pytest.raises(NotImplementedError, match="amplifier member"):
+        SelfSensingStream(est, dt=1.0 / FS_CASE)
+    with pytest.raises(ExportError, match="amplifier member"):
+        c_sources(est, rig, 1.0 / FS_CASE)

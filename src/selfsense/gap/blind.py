@@ -421,7 +421,7 @@ def write_tip_scores(recs: list[dict], sc: dict, out: Path, command: str) -> Non
           f"Command: `{command}`", "",
           f"{n} single-effect cases (families in turn), the project's default estimator (`SensingConfig()`, as the "
           "pipeline runs it). Predicted: the named effect corrected with its stage-fitted coefficients fixed (a member "
-          "of the estimator's charge link: the estimator recalibrated with that member forced on), the "
+          "of the estimator's stage chain: the estimator recalibrated with that member forced on), the "
           "estimator recalibrated on the corrected calibration trials. True: the same device, drive and noise "
           "re-simulated without the effect.", "",
           f"- tip noise floor: {sc['tip_noise_floor']:.3f} points of range",

@@ -95,7 +95,7 @@ def message(v: dict) -> str:
                      + (f", {e['grid_value']} {e['unit']}" if e.get("grid_value") is not None else "") + ").")
         if te and te.get("how"):
             lo, hi = te["shrink_interval_90"]
-            parts.append(f"It is a member of the estimator's charge link; {te['how']}: the tip error changes by "
+            parts.append(f"It is a member of the estimator's stage chain; {te['how']}: the tip error changes by "
                          f"{te['shrink']:+.2f} points of range (90 % interval {lo:+.2f} to {hi:+.2f}; positive = "
                          "smaller error).")
         elif te:
@@ -114,7 +114,7 @@ def message(v: dict) -> str:
     ch = v.get("chain") or {}
     for m, r in (ch.get("members") or {}).items():
         if r.get("adopted"):
-            parts.append(f"The estimate carries the charge link's {m.replace('_', ' ')} (from the {r['source']}): "
+            parts.append(f"The estimate carries the chain member {m.replace('_', ' ')} (from the {r['source']}): "
                          f"without it Table 3's mean would change by {r['contribution']:+.2f} points.")
     if v["unexplained"]:
         parts.append("Unexplained structure remains in the " + ", ".join(v["unexplained"])

@@ -87,6 +87,7 @@ class SensingConfig:
     h_identification: str = "joint"
     rest_offset: str = "auto"
     hold_rows: str = "auto"
+    amplifier: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -105,6 +106,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.rest_offset: expected 'auto' or 'off', found {self.rest_offset!r}")
         if self.hold_rows not in ("auto", "off"):
             raise ValueError(f"SensingConfig.hold_rows: expected 'auto' or 'off', found {self.hold_rows!r}")
+        if self.amplifier not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.amplifier: expected 'auto' or 'off', found {self.amplifier!r}")
         if int(self.cv_blocks) < 2:
             raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
@@ -963,10 +966,13 @@ class SelfSensingEstimator:
         from selfsense.chain.amplifier import identify_current_limit, rebuild_voltage
 
         mode = self._member_modes()["amplifier"]
+        if mode == "auto" and self.config.amplifier == "off":
+            mode = "off"
         self.voltage_hysteresis_ = None
         self.amplifier_ = {"mode": mode, "applied": False}
         if mode == "off":
-            self.amplifier_["note"] = "amplifier member forced off: V = amplifier_gain u_cmd - V_s (eq. 56)"
+            self.amplifier_["note"] = ("amplifier member off (config amplifier: off or member forced off): "
+                                       "V = amplifier_gain u_cmd - V_s (eq. 56)")
             return trials
         if any("V_s" not in df or "u_cmd" not in df for df in trials.values()):
             self.amplifier_["note"] = "no V_s / u_cmd columns: V as given"

@@ -471,6 +471,11 @@ class SelfSensingStream:
 
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
+        if (getattr(estimator, "amplifier_", None) or {}).get("applied"):
+            raise NotImplementedError(
+                "SelfSensingStream: the model carries the amplifier member (the actuator voltage rebuilt where the HV "
+                "amplifier sits at its current limit, interpolated up to the sample where the limit lets go), which "
+                "needs samples a stream has not seen yet; refit with calibration: amplifier: off to stream it")
         if getattr(estimator, "offset_drift_", False) and drift != "causal":
             raise NotImplementedError(
                 "SelfSensingStream: the model carries the offset-drift member (offset_drift: true), a charge drift "
