@@ -1,0 +1,82 @@
+"""Chosen cases of the gap diagnostic's tip tier, scored again with the current code: the named effect's predicted tip
+shrink against the true one (the case's Table 3 minus that of its effect-free twin: same device, drive and noise).
+
+    python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 \\
+        --out benchmarks/gap_tip/amplifier_member.md
+
+Used to rescore one effect family after a change made for it (here: the amplifier member of the voltage link) without
+rerunning the whole campaign (``selfsense gap blind --tip``); the cases are those the campaign drew for that family, so
+the numbers sit beside the campaign's own records (``benchmarks/gap_tip/tip_cases.jsonl.gz``).
+"""
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _one(args):
+    from selfsense.gap.blind import run_tip_case
+
+    i, seed = args
+    return run_tip_case(i, seed)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=4711)
+    ap.add_argument("--cases", required=True, help="comma-separated case indices of the tip campaign")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--campaign", default=str(ROOT / "benchmarks" / "gap_tip" / "tip_cases.jsonl.gz"),
+                    help="the campaign's records, for the 'before this change' columns")
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args(argv)
+    cases = [int(x) for x in a.cases.split(",")]
+    old = {}
+    if Path(a.campaign).exists():
+        with gzip.open(a.campaign, "rt") as fh:
+            old = {r["case"]: r for r in map(json.loads, fh) if r["seed"] == a.seed}
+    with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
+        recs = list(ex.map(_one, [(i, a.seed) for i in cases]))
+    rows = ["| case | family | effect | named top-1 | Table 3 mean, case [points] | effect-free twin | true shrink | "
+            "predicted shrink (90 % interval) | relative error | campaign record: predicted / true |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
+    errs = []
+    for r in recs:
+        e = next(iter(r["manifest"]["effects"]))
+        p = r["predicted_shrink"].get(e)
+        lo, hi = r["interval"].get(e, [float("nan")] * 2)
+        rel = abs(p - r["true_shrink"]) / abs(r["true_shrink"]) if p is not None and r["true_shrink"] else float("nan")
+        if p is not None and r["top"] == e:
+            errs.append(rel)
+        o = old.get(r["case"], {})
+        op = (o.get("predicted_shrink") or {}).get(e)
+        rows.append(f"| {r['case']} | {r['family']} | {e} | {r['top'] == e} | {r['before']:.2f} | "
+                    f"{r['error_without']:.2f} | {r['true_shrink']:.2f} | "
+                    + ("-" if p is None else f"{p:.2f} ({lo:.2f} to {hi:.2f})") + " | "
+                    + ("-" if p is None else f"{rel:.2f}") + " | "
+                    + (f"{op:.2f} / {o['true_shrink']:.2f}" if op is not None else "-") + " |")
+    errs.sort()
+    med = errs[len(errs) // 2] if len(errs) % 2 else (sum(errs[len(errs) // 2 - 1:len(errs) // 2 + 1]) / 2
+                                                     if errs else float("nan"))
+    cmd = "python benchmarks/tip_cases.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    text = (f"# Tip tier, chosen cases rescored\n\nCommand: `{cmd}` "
+            f"({datetime.now(timezone.utc).strftime('%Y-%m-%d')})\n\n" + "\n".join(rows)
+            + f"\n\nMedian relative error of the predicted shrink over the {len(errs)} cases named right: {med:.2f}\n")
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(text)
+    body = "".join(json.dumps(r, default=float, sort_keys=True) + "\n" for r in recs).encode()
+    with open(Path(a.out).with_suffix(".jsonl.gz"), "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
+        fh.write(body)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
