@@ -68,7 +68,9 @@ def results(tmp_path):
              "h_slope": 8e5, "config": {"h_model": "ri", "h_mode": "thesis"},
              "fit_report": {"hysteresis": {"h_model": "ri", "trial": "cal_free", "trials": ["cal_free", "cal_free2"],
                                            "rms_pct": 0.1, "max_pct": 0.5, "rms_v": 0.08}},
-             "calibration_trials": ["cal_free", "cal_free2", "cal_blocked"], "ranges": {"dx": [0, 6e-3], "f": [0, 0.1]}}
+             "calibration_trials": ["cal_free", "cal_free2", "cal_blocked"], "ranges": {"dx": [0, 6e-3], "f": [0, 0.1]},
+             "amplifier": {"applied": False, "note": "current plateau at 0.85 mA holds 0.1 % of the relay-open "
+                                                     "samples: no current limit"}}
     (res / "model" / "sensing.json").write_text(json.dumps(model))
     (res / "tables" / "table3.md").write_text("### Table 3: x\n\n| Measurement | % of range |\n|---|---|\n| force | 9 % |\n")
     pd.DataFrame({"measurement": ["displacement", "force"], "percent_of_range": [9.05, 10.78]}).to_csv(
@@ -117,6 +119,9 @@ def test_report_sections_in_words(results):
     assert "not observed in this dataset" in flat and "(unexplained structure remains)" in flat
     assert "<li>the levels hi, 0, mid</li>" in page
     assert "H(q) model selection" not in text  # no h_selection.csv: no section
+    # the voltage link's amplifier member: the decision and its measurement, also where it was not adopted
+    assert ("current limit (shunt current of every trial, docs/method.md 1a): read from the command, eq. (56), "
+            "current plateau at 0.85 mA holds 0.1 % of the relay-open samples: no current limit") in flat
 
 
 def test_model_selection_table(results):

@@ -190,6 +190,11 @@ def _model_section(results_dir: Path) -> list[str]:
         if hr.get("note"):
             kind += (f"; creep of H(q) from the holds of every trial (V and Q only, docs/method.md 6b'): "
                      f"{'used' if hr.get('applied') else 'not used'}, {html.escape(str(hr['note']))}")
+    amp = d.get("amplifier") or {}
+    if amp.get("note"):
+        kind += (f"; actuator voltage where the HV amplifier sits at its current limit (shunt current of every trial, "
+                 f"docs/method.md 1a): {'rebuilt' if amp.get('applied') else 'read from the command, eq. (56)'}, "
+                 f"{html.escape(str(amp['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"
