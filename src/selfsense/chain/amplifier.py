@@ -111,6 +111,8 @@ def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_
     band = max(BAND_SIGMA * sigma, BAND_REL * top)
     i_lim = float(np.median(a_all[a_all >= top - band]))
     frac = float(np.mean(a_all >= i_lim - band))
+    trial_lim = AmplifierLimit(i_lim=i_lim, band=band, supported=True)
+    leads = []
     for df in trials.values():
         if "V_s" not in df:
             continue
@@ -118,20 +120,14 @@ def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_
         dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
         m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
         runs_s += [(b - a_) * dt for a_, b in _runs(m)]
-    longest = max(runs_s, default=0.0)
-    trial_lim = AmplifierLimit(i_lim=i_lim, band=band, supported=True)
-    leads = []
-    for df in trials.values():
-        if "V_s" not in df or "u_cmd" not in df:
-            continue
-        m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
-        if not m.any():
+        if "u_cmd" not in df or not m.any():
             continue
         V = df["V"].to_numpy(dtype=float)
         rel = df["relay"].to_numpy(dtype=float) >= 0.5
         span = float(np.ptp(V[~rel])) or 1.0
         lin = rebuild_voltage(df, shunt_resistance_ohm, amplifier_gain, trial_lim)
         leads.append(np.sign(shunt_current(df, shunt_resistance_ohm)[m]) * (V[m] - lin[m]) / span)
+    longest = max(runs_s, default=0.0)
     lag = float(np.median(np.concatenate(leads))) if leads else 0.0
     ok = frac >= PLATEAU_MIN_FRACTION and longest >= RUN_MIN_S and lag >= LAG_MIN
     note = (f"current plateau at {i_lim * 1e3:.4g} mA holds {frac * 100:.1f} % of the relay-open samples, longest run "
@@ -169,14 +165,15 @@ def rebuild_voltage(df: pd.DataFrame, shunt_resistance_ohm: float, amplifier_gai
     u = df["u_cmd"].to_numpy(dtype=float) * float(amplifier_gain)
     i = shunt_current(df, shunt_resistance_ohm)
     s = np.sign(i) * L
-    # anchors: (position in samples, charge, V - H)
-    anchors = [(float(k), q[k], V[k] - H[k]) for k in np.flatnonzero(~L)]
-    for k in np.flatnonzero(L[:-1] & L[1:] & (s[:-1] * s[1:] < 0)):
-        anchors.append((k + 0.5, 0.5 * (q[k] + q[k + 1]), 0.5 * (u[k] + u[k + 1]) - 0.5 * (H[k] + H[k + 1])))
-    anchors.sort()
-    pos = np.array([a[0] for a in anchors])
-    qa = np.array([a[1] for a in anchors])
-    wa = np.array([a[2] for a in anchors])
+    # anchors, in sample order: position in samples, charge, V - H (every sample off the plateau, then every
+    # reversal of the limited current at the middle of its interval)
+    off = np.flatnonzero(~L)
+    rev = np.flatnonzero(L[:-1] & L[1:] & (s[:-1] * s[1:] < 0))
+    pos = np.concatenate([off.astype(float), rev + 0.5])
+    qa = np.concatenate([q[off], 0.5 * (q[rev] + q[rev + 1])])
+    wa = np.concatenate([V[off] - H[off], 0.5 * (u[rev] + u[rev + 1]) - 0.5 * (H[rev] + H[rev + 1])])
+    order = np.argsort(pos, kind="stable")
+    pos, qa, wa = pos[order], qa[order], wa[order]
     W = V - H
     idx = np.flatnonzero(L)
     j = np.searchsorted(pos, idx)           # anchors left (j-1) and right (j) of each limited sample
