@@ -69,9 +69,6 @@ def main(argv=None) -> int:
                     + ("-" if p is None else f"{p:.2f} ({lo:.2f} to {hi:.2f})") + " | "
                     + ("-" if p is None else f"{rel:.2f}") + " | "
                     + (f"{op:.2f} / {o['true_shrink']:.2f}" if op is not None else "-") + " |")
-    errs.sort()
-    med = errs[len(errs) // 2] if len(errs) % 2 else (sum(errs[len(errs) // 2 - 1:len(errs) // 2 + 1]) / 2
-                                                     if errs else float("nan"))
     args = [x for x in (sys.argv[1:] if argv is None else argv)]
     if "--records" in args:   # the command that made the records, not the rewrite
         k = args.index("--records")
@@ -80,6 +77,7 @@ def main(argv=None) -> int:
     cost_now = sorted(r["true_shrink"] for r in recs)
     cost_old = sorted(old[r["case"]]["true_shrink"] for r in recs if r["case"] in old)
     median = lambda v: float(statistics.median(v)) if v else float("nan")  # noqa: E731
+    med = median(errs)
     text = (f"# Tip tier, chosen cases rescored\n\nCommand: `{cmd}` "
             f"({datetime.now(timezone.utc).strftime('%Y-%m-%d')})\n\n" + "\n".join(rows)
             + f"\n\nMedian relative error of the predicted shrink over the {len(errs)} cases named right: {med:.2f}. "

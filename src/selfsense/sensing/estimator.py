@@ -710,7 +710,8 @@ class SelfSensingEstimator:
         return g, info
 
     def _member_modes(self) -> dict:
-        """The charge-link members' modes: ``members`` forced values over ``drift`` (auto | off)."""
+        """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
+        the ``members`` forced values, "auto" where not forced."""
         out = {}
         for k in ("leakage", "offset_drift", "hold_rows", "amplifier"):
             m = str(self.members.get(k, "auto"))
@@ -963,7 +964,7 @@ class SelfSensingEstimator:
         "auto") or forced ("on"), the actuator voltage of the current-limited samples is rebuilt with ``V - H(q)``
         linear in the charge between the anchors (thesis eqs. 24-27: V_p is affine in q at a given load) and the
         reference H(q) of :meth:`_anchor_h`. Returns the trials to fit on."""
-        from selfsense.chain.amplifier import identify_current_limit, rebuild_voltage
+        from selfsense.chain.amplifier import identify_current_limit
 
         mode = self._member_modes()["amplifier"]
         if mode == "auto" and self.config.amplifier == "off":
