@@ -9,8 +9,10 @@ import pytest
 #: Table 3 of the default configuration on data/raw/sample, displacement and force [% of range], measured on this
 #: project's machine (the smoke pipeline), and the tolerance [points] derived in
 #: tests/pipeline/test_accuracy_pinned.py from the cross-machine spread of docs/reproducibility.md. With the hold rows
-#: of the H(q) fit (hold_rows: auto, docs/method.md 6b') they went from 5.04 / 3.74 to 4.41 / 3.29
-SAMPLE_TABLE3_PCT = {"displacement": 4.41, "force": 3.29}
+#: of the H(q) fit (hold_rows: auto, docs/method.md 6b') they went from 5.04 / 3.74 to 4.41 / 3.29; with the sample
+#: regenerated after the simulator's stress fix (the load-dependent hysteresis updated per sub-step, CHANGELOG) to
+#: 3.37 / 2.95
+SAMPLE_TABLE3_PCT = {"displacement": 3.37, "force": 2.95}
 TABLE3_TOL_POINTS = 0.3
 
 

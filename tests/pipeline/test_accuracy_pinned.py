@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: Table 3 of tweezer_sim (displacement, force, % of range) measured with the default configuration on this
 #: project's machine (`selfsense run --cores 2`; benchmarks/RESULTS.md, the README's table); the sample's figures
 #: and the tolerance are the suite's (tests/conftest.py)
-TWEEZER_SIM = {"displacement": 2.22, "force": 3.99}
+TWEEZER_SIM = {"displacement": 1.93, "force": 3.62}
 
 
 def _table3(dataset: str, tmp: Path) -> pd.Series:

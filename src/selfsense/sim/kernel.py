@@ -9,7 +9,8 @@ Per sub-step (default 10 per DAQ sample, i.e. 10 kHz) the kernel
    000_18d138f03f1777c3.txt sec. 5.1.1, Fig. 18, eqs. 56-57) for the actuator charge q_act:
 
        (V_c - V)/R  - g_relay V  =  dq_act/dt + V/R_leak + (V - v_da)/(R_da + dt/C_da),
-       V = V_p + V_H,   V_H = H_true(q_act, history) (Preisach + electrical creep + stress),
+       V = V_p + V_H,   V_H = H_true(q_act, history) (Preisach + electrical creep + stress; the stress
+       factor follows the tip force of the previous sub-step, so that V_H moves as smoothly as the load),
 
    by a secant-Newton iteration (R/dt dominates the Jacobian, convergence in a few iterations);
    inside each iterate, the Goldfarb-Celanovic actuators (thesis eqs. 24-27, n_A in parallel, eq. 45)
@@ -237,8 +238,11 @@ def run_kernel(u_cmd, relay, dT, P, comps, hp, out):
         u0 = u_cmd[kk_]
         u1 = u_cmd[kk_ + 1] if kk_ + 1 < n else u0
         dVdq0 = 1.0 / den / qref * qref + hlin / qref
-        stress = 1.0 + sm * abs(ftip) / fsr
         for s in range(nsub):
+            # the tip load's stress on the hysteresis follows the tip force of the previous sub-step; held over a whole
+            # DAQ sample it jumped at every sample, and the RC transient of the shunt current each jump drove was
+            # over before the sampled current saw it: charge that flowed but never reached the DAQ record
+            stress = 1.0 + sm * abs(ftip) / fsr
             # DAQ analog output with reconstruction filter: linear between the AO samples
             v_t = gain * (u0 + (u1 - u0) * (s + 1) / nsub)
             if dz > 0.0:
