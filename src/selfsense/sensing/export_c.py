@@ -88,7 +88,7 @@ def _h_spec(h, dt: float) -> dict:
                 "v_lo": h.v_lo_, "v_span": h.v_span_, "eps": h.eps, "v_min": h.v_lo_ - 1.0 * h.v_span_,
                 "v_max": h.v_lo_ + 2.0 * h.v_span_,
                 "relax_g": [-math.expm1(-dt / float(t)) for t in h.creep_tau_s], "relax_w": list(h.lin_coef_[:nc]),
-                "const": h.lin_coef_[nc]}
+                "const": h.lin_coef_[nc], "lin": h.lin_coef_[nc + 1] if len(h.lin_coef_) > nc + 1 else 0.0}
     if kind == "modified_pi" or (name == "GaugedH" and type(h.inner).__name__ == "ModifiedPI"):
         inner, sign, cg = ((h.inner_, h.sign_, h.c_) if kind == "modified_pi" else (h.inner, h.sign, h.c))
         m = inner
@@ -545,8 +545,9 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         parts.append(_DUHEM)
         init = ["int i;", "for (i = 0; i < N_RELAX; i++) s->rz[i] = 0.0;",
                 "s->dval = 0.0; s->dext = 0.0; s->dup = 0.0; s->ddir = 1; s->dstarted = 0;"]
+        src.append(f"#define H_LIN {_num(h['lin'])}\n")
         body = ("    double u = (q - Q_LO) / Q_SPAN, y;\n    duhem_step(s, u, &y);\n    y = y + relax_step(s, u);\n"
-                "    *vh = y + H_CONST;\n    return SS_OK;\n")
+                "    *vh = y + H_CONST + H_LIN * u;\n    return SS_OK;\n")
     elif H == "MPI":
         nH, nC, nSp, nSn = len(h["rH"]), len(h["rC"]), len(h["rSp"]), len(h["rSn"])
         sizes += [f"#define N_H {nH}", f"#define N_C {nC}", f"#define N_SP {nSp}", f"#define N_SN {nSn}"]

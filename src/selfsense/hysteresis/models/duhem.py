@@ -15,12 +15,20 @@ and output (``_duhem.duhem_terms``), identified from the calibration data.
 The H model (same input normalisation, creep bank and joint extra columns as :class:`LinearParamH`,
 thesis 000_18d138f03f1777c3.txt eqs. 38-41 for the creep operator):
 
-    H(q) = v[u] + sum_j w_j (u - z_j) + b,   u = (q - q_lo) / q_span,   v = 0 in the relaxed state,
+    H(q) = v[u] + a u + sum_j w_j (u - z_j) + b,   u = (q - q_lo) / q_span,   v = 0 in the relaxed state,
+
+with the linear part ``[creep bank | 1 | u]`` of the models linear in their parameters (the creep weights carry the
+model's ridge, as there). Without its own ``u`` column the reversible slope ``a`` has to come from the map or from
+the creep columns whose time constants outlast the calibration records (``u - z_j`` is close to ``u`` there): those
+took large cancelling weights that fit the sines and diverged in the holds and longer trials (measured on
+whole-device Bouc-Wen devices, docs/cross_device.md).
 
 * initial ``g`` by equation error: the increments of the output left after a preliminary PI fit of the linear part
-  (creep, offset, extra columns) regressed on ``phi(u, v) du``, per direction; a second start from ``g = 0``;
+  (creep, offset, linear term, extra columns) regressed on ``phi(u, v) du``, per direction; a second start from
+  ``g = 0``;
 * refined by output error: ``min_c |P (y - v[u; c])|^2`` with ``P`` the projector on the complement of the
-  linear columns (creep, offset, extra) -- variable projection, exact because those columns do not depend on c --
+  linear columns (creep, offset, linear term, extra; ridge-augmented for the creep weights) -- variable projection,
+  exact because those columns do not depend on c --
   by a trust-region least-squares solver with the exact sensitivities of the discrete map;
 * a small ridge on c (relative to the output range) keeps unidentified directions of the polynomial at zero.
 """
@@ -70,7 +78,8 @@ class DuhemH:
     joint_extra = True
 
     def __init__(self, degree: int = 3, ridge: float = 1e-7, creep: bool = True,
-                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, eps: float = 2e-3, max_nfev: int = 30):
+                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, eps: float = 2e-3, max_nfev: int = 30,
+                 creep_ridge: float | None = None):
         if int(degree) < 1:
             raise ValueError(f"DuhemH: degree must be >= 1, got {degree!r}")
         if not float(eps) >= 0:
@@ -78,6 +87,7 @@ class DuhemH:
         self.degree, self.ridge, self.creep = int(degree), float(ridge), bool(creep)
         self.creep_tau_s = tuple(float(t) for t in creep_tau_s) if self.creep else ()
         self.eps, self.max_nfev = float(eps), int(max_nfev)
+        self.creep_ridge = None if creep_ridge is None else float(creep_ridge)
         self.coef_: np.ndarray | None = None
         self.lin_coef_ = np.zeros(0)
         self.extra_coef_ = np.zeros(0)
@@ -90,9 +100,10 @@ class DuhemH:
         return np.ascontiguousarray((np.asarray(q, dtype=float) - self.q_lo_) / self.q_span_)
 
     def _linear_cols(self, u: np.ndarray, dt: float, stride: int = 1) -> np.ndarray:
-        """``[creep bank | 1]`` of one segment, every ``stride``-th row (the filters run over every sample)."""
+        """``[creep bank | 1 | u]`` of one segment, every ``stride``-th row (the filters run over every sample)."""
         cols = [relaxation_bank(u, dt, [t])[::stride] for t in self.creep_tau_s]
         cols.append(np.ones((u[::stride].size, 1)))
+        cols.append(u[::stride, None])
         return np.column_stack(cols)
 
     def _run(self, u, c, stride=1, jac=False, state=None):
@@ -149,10 +160,9 @@ class DuhemH:
                                      f"{L.shape[1]} parameters")
         # 1. preliminary PI fit of the linear part -> state estimate v_eq = y - L beta on the strided rows
         P = np.vstack([play_features(u, np.arange(1, 11) / 10.0, k)[r] for u, r in zip(us, rows)])
-        U = np.concatenate([u[::k][r] for u, r in zip(us, rows)])
-        X0 = np.column_stack([P, U, L])
-        pen = np.concatenate([np.ones(P.shape[1], bool), np.zeros(1 + L.shape[1], bool)])
-        b0 = ridge_lstsq(X0, y, pen, 1e-6)[P.shape[1] + 1:]
+        X0 = np.column_stack([P, L])
+        pen = np.concatenate([np.ones(P.shape[1], bool), np.zeros(L.shape[1], bool)])
+        b0 = ridge_lstsq(X0, y, pen, 1e-6)[P.shape[1]:]
         v_eq = [vv[::k] - Lm @ b0 for vv, Lm in zip(vs, Ls)]
         both = np.concatenate([ve[m[::k]] for ve, m in zip(v_eq, masks)])
         lo, hi = float(np.min(both)), float(np.max(both))
@@ -161,10 +171,18 @@ class DuhemH:
         self.v_lo_ = lo - 0.05 * (hi - lo)
         self.v_span_ = 1.1 * (hi - lo)
         c0 = self._equation_error([u[::k] for u in us], v_eq, [m[::k] for m in masks])
-        # 2. output error with the linear columns projected out (variable projection)
-        Qf, _ = np.linalg.qr(L)
+        # 2. output error with the linear columns projected out (variable projection); the creep bank's weights
+        # carry the ridge of ridge_lstsq (column-scaled, ridge N): the projection is that of the ridge-augmented
+        # linear columns, so the projected residual is exactly the ridge-solved linear part's residual
+        nc = len(self.creep_tau_s)
+        pen = np.zeros(L.shape[1], bool)
+        pen[:nc] = True
+        cr = self.ridge if self.creep_ridge is None else self.creep_ridge
+        La, n_aug = self._ridge_augment(L, pen, cr)
+        Qf, _ = np.linalg.qr(La)
         nb = 2 * n_terms(self.degree)
         lam = np.sqrt(self.ridge * y.size) * (1.0 / self.v_span_)   # c ~ v_span: relative ridge
+        zpad = np.zeros(n_aug)
 
         def resid_jac(c, want_jac):
             Vs, Js = [], []
@@ -173,11 +191,11 @@ class DuhemH:
                 Vs.append(Vk[r])
                 if want_jac:
                     Js.append(Jk[r])
-            e = y - np.concatenate(Vs)
+            e = np.concatenate([y - np.concatenate(Vs), zpad])
             e = e - Qf @ (Qf.T @ e)
             if not want_jac:
                 return np.concatenate([e, lam * c]), None
-            J = -np.vstack(Js)
+            J = np.vstack([-np.vstack(Js), np.zeros((n_aug, nb))])
             J = J - Qf @ (Qf.T @ J)
             return np.concatenate([e, lam * c]), np.vstack([J, lam * np.eye(nb)])
 
@@ -196,11 +214,12 @@ class DuhemH:
         if holds:
             Lh, rh = self._hold_rows(holds, c, dt, y.size, L.shape[1])
             Lz = np.column_stack([L, np.zeros((len(L), Lh.shape[1] - L.shape[1]))])
-            beta, *_ = np.linalg.lstsq(np.vstack([Lz, Lh]), np.concatenate([y - Vall, rh]), rcond=None)
+            penh = np.concatenate([pen, np.zeros(Lh.shape[1] - L.shape[1], bool)])
+            beta = ridge_lstsq(np.vstack([Lz, Lh]), np.concatenate([y - Vall, rh]), penh, cr)
             beta = beta[:L.shape[1]]   # the hold-only columns are not part of the model
             n_hold = len(rh)
         else:
-            beta, *_ = np.linalg.lstsq(L, y - Vall, rcond=None)
+            beta = ridge_lstsq(L, y - Vall, pen, cr)
         self.coef_ = np.asarray(c, float)
         self.lin_coef_ = beta[:nl]
         self.extra_coef_ = beta[nl:]
@@ -210,6 +229,19 @@ class DuhemH:
                             "n_hold_rows": int(n_hold),
                             "solver": "variable-projection trust-region least squares (output error)"}
         return self
+
+    @staticmethod
+    def _ridge_augment(L: np.ndarray, pen: np.ndarray, ridge: float) -> tuple[np.ndarray, int]:
+        """``L`` with the ridge rows of :func:`~selfsense.hysteresis.models.ridge_lstsq` appended (``sqrt(ridge N)``
+        on each penalised column, in the column scaling of ``L``'s RMS), and their number."""
+        idx = np.flatnonzero(pen)
+        if not (ridge > 0 and idx.size):
+            return L, 0
+        s = np.sqrt(np.mean(L ** 2, axis=0))
+        s[~(s > 0)] = 1.0
+        R = np.zeros((idx.size, L.shape[1]))
+        R[np.arange(idx.size), idx] = np.sqrt(ridge * L.shape[0]) * s[idx]
+        return np.vstack([L, R]), int(idx.size)
 
     @staticmethod
     def _split(a, lengths, name):
@@ -279,7 +311,8 @@ class DuhemH:
         nc = len(self.creep_tau_s)
         if nc:
             y = y + relaxation_output(u, dt, self.creep_tau_s, self.lin_coef_[:nc], st["creep"])
-        return y + self.lin_coef_[nc]
+        a = self.lin_coef_[nc + 1] if self.lin_coef_.size > nc + 1 else 0.0   # the linear term (0 if absent)
+        return y + self.lin_coef_[nc] + a * u
 
     def __call__(self, q) -> np.ndarray:
         return self.predict(q)
@@ -292,7 +325,8 @@ class DuhemH:
 
     def _params(self) -> dict:
         return {"degree": self.degree, "ridge": self.ridge, "creep": self.creep, "creep_tau_s": list(self.creep_tau_s),
-                "eps": self.eps, "max_nfev": self.max_nfev}
+                "eps": self.eps, "max_nfev": self.max_nfev, **({} if self.creep_ridge is None else
+                                                               {"creep_ridge": self.creep_ridge})}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "DuhemH":
@@ -305,9 +339,12 @@ class DuhemH:
         if m.coef_ is not None and m.coef_.shape != (2 * n_terms(m.degree),):
             raise ValueError(f"H model duhem: coef must hold {2 * n_terms(m.degree)} values (degree {m.degree}, "
                              f"ascending and descending), found shape {m.coef_.shape}")
-        if m.coef_ is not None and m.lin_coef_.shape != (len(m.creep_tau_s) + 1,):
-            raise ValueError(f"H model duhem: lin_coef must hold {len(m.creep_tau_s) + 1} values (creep bank and "
-                             f"offset), found shape {m.lin_coef_.shape}")
+        nc = len(m.creep_tau_s)
+        if m.coef_ is not None and m.lin_coef_.shape == (nc + 1,):
+            m.lin_coef_ = np.append(m.lin_coef_, 0.0)   # written before the linear term u joined: its weight is 0
+        if m.coef_ is not None and m.lin_coef_.shape != (nc + 2,):
+            raise ValueError(f"H model duhem: lin_coef must hold {nc + 2} values (creep bank, offset and the "
+                             f"linear term), found shape {m.lin_coef_.shape}")
         return m
 
     def label(self) -> str:
