@@ -33,6 +33,7 @@ DATES = {
     "first_contact_rate_kp": "2026-11-26",
     "whole_device": "2026-11-26",
     "whole_device_hold_rows": "2026-11-26",
+    "whole_device_duhem_linear": "2026-11-26",
     "hold_rows": "2026-11-26",
     "gap_stages": "2026-11-24",
     "gap_tip": "2026-11-24",
@@ -49,6 +50,11 @@ COMMANDS = {
                     "--out benchmarks/cross_device/whole_device/thesis",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                               "--out benchmarks/cross_device/whole_device/thesis_hold_rows",
+    # the clean devices rescored after the Duhem model got its own linear term: Bouc-Wen 10 devices, then the other
+    # four families 5 each into the same folder
+    "whole_device_duhem_linear": "selfsense devices bench --n {n} --families {families} --presets clean --jobs 1 "
+                                 "--protocol thesis --randomise device "
+                                 "--out benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear",
     "hold_rows": "python benchmarks/hold_rows.py --seeds 0-2 --holds 0,8 --jobs 2 --out benchmarks/hold_rows",
     "gap_stages": "selfsense gap blind --n 1000 --seed 7 --jobs 2 --out benchmarks/gap_stages",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
@@ -140,22 +146,107 @@ def _pct(cell: str) -> str:
     return f"{float(m.group()):.2f} %" if m else cell
 
 
-def _device_table_figures(src: str, what: str, command: str, date: str) -> list[Fig]:
+def _device_table_figures(src: str, what: str, command: str, date: str,
+                          superseded: dict[tuple[str, str], str] | None = None) -> list[Fig]:
     """One row per family and preset of a ``selfsense devices bench`` table (``cross_device.csv``): median (p90)
-    displacement / force against the targets (clean 5 / 8 %, drift 8 / 12 %); ``what`` names the benchmark case."""
+    displacement / force against the targets (clean 5 / 8 %, drift 8 / 12 %); ``what`` names the benchmark case.
+    ``superseded`` maps (family, preset) to a note saying which later row replaces that row (its figures stay)."""
     out = []
     for r in sorted(csv.DictReader((ROOT / src).open()), key=lambda r: (r["preset"], r["family"])):
         tgt = (5, 8) if r["preset"] == "clean" else (8, 12)
         dm, fm = float(r["displacement_median_pct"]), float(r["force_median_pct"])
+        note = (superseded or {}).get((r["family"], r["preset"]))
         out.append(Fig(f"{FAMILY.get(r['family'], r['family'])}, {r['preset']} preset, {what} ({r['n_devices']} "
-                       f"devices, {r['n_failed']} failed): median (p90) displacement / force",
+                       f"devices, {r['n_failed']} failed): median (p90) displacement / force"
+                       + (f"; **superseded**: {note}" if note else ""),
                        f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
                        f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
-                       _met(dm <= tgt[0] and fm <= tgt[1]), src, command, date))
+                       _met(dm <= tgt[0] and fm <= tgt[1]) + (" (superseded)" if note else ""), src, command, date))
+    return out
+
+
+WHOLE_HOLD = "benchmarks/cross_device/whole_device/thesis_hold_rows"
+WHOLE_DUHEM = "benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear"
+
+
+def _duhem_linear_rescore() -> dict[tuple[str, str], dict]:
+    """The devices rescored after the Duhem model got its linear term (``WHOLE_DUHEM``/records) against the records of
+    the same devices (same family, preset, seed) in ``WHOLE_HOLD``/records, per (family, preset): the new and the old
+    records, and how many record files differ byte for byte."""
+    groups: dict[tuple[str, str], dict] = {}
+    for p in sorted((ROOT / WHOLE_DUHEM / "records").glob("*.json")):
+        new = json.loads(p.read_text())
+        old_p = ROOT / WHOLE_HOLD / "records" / p.name
+        if not old_p.exists():
+            raise SystemExit(f"benchmarks/figures.py: {WHOLE_DUHEM}/records/{p.name} has no record of the same device "
+                             f"in {WHOLE_HOLD}/records")
+        g = groups.setdefault((new["family"], new["preset"]), {"new": [], "old": [], "changed": 0, "seeds": []})
+        g["new"].append(new)
+        g["old"].append(json.loads(old_p.read_text()))
+        g["seeds"].append(int(new["seed"]))
+        g["changed"] += p.read_bytes() != old_p.read_bytes()
+    return groups
+
+
+def _seed_span(seeds: list[int]) -> str:
+    s = sorted(seeds)
+    return f"{s[0]}-{s[-1]}" if s == list(range(s[0], s[-1] + 1)) else ",".join(map(str, s))
+
+
+def duhem_linear_figures(groups: dict[tuple[str, str], dict]) -> list[Fig]:
+    """One row per family and preset of the rescore after the Duhem model's linear term, computed from the committed
+    records with the bench's own aggregation (``selfsense.devices.aggregate``), with the same devices' score before
+    when a record changed, or the statement that every record is bit-identical."""
+    from selfsense.devices import aggregate
+
+    out = []
+    for (fam, pre), g in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        new, old = aggregate(g["new"]).iloc[0], aggregate(g["old"]).iloc[0]
+        # the bench's own table in that folder must say the same (it is written by the same aggregation)
+        for r in csv.DictReader((ROOT / WHOLE_DUHEM / "cross_device.csv").open()):
+            if (r["family"], r["preset"]) == (fam, pre) and any(
+                    f"{float(r[k]):.2f}" != f"{new[k]:.2f}" or int(r["n_devices"]) != len(g["new"])
+                    for k in ("displacement_median_pct", "displacement_p90_pct", "force_median_pct", "force_p90_pct")):
+                raise SystemExit(f"benchmarks/figures.py: {WHOLE_DUHEM}/cross_device.csv disagrees with its records "
+                                 f"for {fam} {pre}")
+        n, n_hold = len(g["new"]), sum(1 for _ in (ROOT / WHOLE_HOLD / "records").glob(f"{fam}_{pre}_*.json"))
+        tgt = (5, 8) if pre == "clean" else (8, 12)
+        dm, fm = new["displacement_median_pct"], new["force_median_pct"]
+        if g["changed"]:
+            then = (f"{g['changed']} of the {n} device records changed; the same {n} devices before: "
+                    f"{old['displacement_median_pct']:.2f} ({old['displacement_p90_pct']:.2f}) / "
+                    f"{old['force_median_pct']:.2f} ({old['force_p90_pct']:.2f}) %")
+        else:
+            then = (f"all {n} device records bit-identical to those of the same seeds ({_seed_span(g['seeds'])}) in "
+                    f"the row with the hold rows" + (f", a subset of its {n_hold} devices; that row stands"
+                                                    if n_hold > n else "; that row stands"))
+        # one bench run per number of devices (seeds 0..n-1), over the families rescored with that many
+        if sorted(g["seeds"]) != list(range(n)):
+            raise SystemExit(f"benchmarks/figures.py: {WHOLE_DUHEM}: {fam} {pre} has seeds {sorted(g['seeds'])}, "
+                             f"not 0-{n - 1}: {COMMANDS['whole_device_duhem_linear']} does not describe them")
+        cmd = COMMANDS["whole_device_duhem_linear"].format(
+            n=n, families=",".join(sorted({f for (f, _), h in groups.items() if len(h["new"]) == n})))
+        out.append(Fig(f"{FAMILY.get(fam, fam)}, whole-device randomisation, thesis calibration, with the hold rows, "
+                       f"with the Duhem linear term (commit of 2026-11-26), {pre} preset, {n} devices "
+                       f"({int(new['n_failed'])} failed): median (p90) displacement / force; {then}",
+                       f"{dm:.2f} ({new['displacement_p90_pct']:.2f}) / {fm:.2f} ({new['force_p90_pct']:.2f}) %",
+                       f"{tgt[0]} / {tgt[1]} %", _met(dm <= tgt[0] and fm <= tgt[1]), f"{WHOLE_DUHEM}/records", cmd,
+                       DATES["whole_device_duhem_linear"]))
     return out
 
 
 def cross_device_figures() -> list[Fig]:
+    groups = _duhem_linear_rescore()
+    superseded = {}
+    for (fam, pre), g in groups.items():
+        if g["changed"]:
+            hold_seeds = [int(q.stem.rsplit("_", 1)[1])
+                          for q in (ROOT / WHOLE_HOLD / "records").glob(f"{fam}_{pre}_*.json")]
+            rest = sorted(set(hold_seeds) - set(g["seeds"]))
+            superseded[(fam, pre)] = (
+                f"rescored with the Duhem linear term on seeds {_seed_span(g['seeds'])}, whose records changed on "
+                f"{g['changed']} of {len(g['new'])} devices (row with the Duhem linear term below)"
+                + (f"; seeds {_seed_span(rest)} not rescored" if rest else ""))
     return (_device_table_figures("benchmarks/cross_device/cross_device.csv", "three-trial calibration",
                                   COMMANDS["cross_device"], DATES["cross_device"])
             # the fifth family's first contact on the thesis protocol, scored once before any estimator change for it
@@ -168,10 +259,14 @@ def cross_device_figures() -> list[Fig]:
             + _device_table_figures("benchmarks/cross_device/whole_device/thesis/cross_device.csv",
                                     "whole-device randomisation, thesis calibration, first contact",
                                     COMMANDS["whole_device"], DATES["whole_device"])
-            # the same 100 devices scored again after the hold rows of the H(q) fit (docs/method.md 6b')
-            + _device_table_figures("benchmarks/cross_device/whole_device/thesis_hold_rows/cross_device.csv",
+            # the same 100 devices scored again after the hold rows of the H(q) fit (docs/method.md 6b'); a family's
+            # row is superseded where the Duhem linear term changed any of its rescored devices' records
+            + _device_table_figures(f"{WHOLE_HOLD}/cross_device.csv",
                                     "whole-device randomisation, thesis calibration, with the hold rows",
-                                    COMMANDS["whole_device_hold_rows"], DATES["whole_device_hold_rows"]))
+                                    COMMANDS["whole_device_hold_rows"], DATES["whole_device_hold_rows"],
+                                    superseded=superseded)
+            # the clean devices rescored after the Duhem model got its own linear term
+            + duhem_linear_figures(groups))
 
 
 def hold_rows_figures() -> list[Fig]:
