@@ -151,8 +151,9 @@ def test_rest_segments_recover_an_injected_offset_drift():
 
 
 def test_estimate_command_runs_the_offset_drift_member_in_batch(tmp_path):
-    """`selfsense estimate` with the default model, which on this dataset adopts the offset-drift member (fitted over
-    whole trials, so not streamable), reproduces the batch pipeline on a raw log."""
+    """`selfsense estimate` with a model that carries the offset-drift member (fitted over whole trials, so not
+    streamable; forced on here, the bundled sample's data do not ask for it) reproduces the batch pipeline on a raw
+    log."""
     import json
 
     from selfsense.cli.estimate import estimate_log, streamable
@@ -161,7 +162,8 @@ def test_estimate_command_runs_the_offset_drift_member_in_batch(tmp_path):
     rig = sio.load_rig(d)
     meta = sio.load_trials(d).set_index("trial")
     sigs = {t: prepare_trial(sio.trial_signals(d, t, rig=rig), rig) for t in meta.index}
-    est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit(sigs, meta)
+    est = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"offset_drift": "on"}).fit(sigs, meta)
+    assert est.offset_drift_
     model = tmp_path / "sensing.json"
     model.write_text(json.dumps(est.to_dict(), default=float))
     assert not streamable(model)

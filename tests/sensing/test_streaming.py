@@ -579,25 +579,30 @@ def test_hstream_rejects_unknown_model():
     assert "preisach" in stream_kinds() and "GaugedH" in stream_kinds()
 
 
-@pytest.mark.skipif(not (ROOT / "data" / "raw" / "sample").exists(), reason="data/raw/sample not present yet")
 def test_causal_offset_drift_member_streams_and_recovers_most_of_the_batch_gain(tmp_path):
-    """The default model of the bundled sample adopts the offset-drift member (fitted over whole trials in batch).
-    ``drift='causal'`` fits the same ramp on the rest segments seen so far: any split into blocks gives the same
-    bits, the fit is updated during the trial, and on the displacement validation trial (drift measured by the
-    calibration) the causal estimate recovers most of what the batch member gains over no drift compensation."""
-    d = ROOT / "data" / "raw" / "sample"
+    """A Preisach device with a 10 uV/s in-amp offset drift, whose default model adopts the offset-drift member
+    (fitted over whole trials in batch). ``drift='causal'`` fits the same ramp on the rest segments seen so far: any
+    split into blocks gives the same bits, the fit is updated during the trial, and on the free-tip displacement
+    validation trial the causal estimate recovers most of what the batch member gains over no drift compensation."""
+    from selfsense.signals import prepare_trial
+    from selfsense.sim.families import draw_device
+    from selfsense.sim.simulate import simulate_dataset
+
+    sc = draw_device("preisach", 21, "clean")
+    sc["trials"] = [dict(t, duration=min(t["duration"], 14)) for t in sc["trials"]]
+    sc["effects"].update({"offset_drift": 10.0, "preload": 0.0})
+    d = tmp_path / sc["name"]
+    simulate_dataset(sc, out_dir=d, truth_dir=tmp_path / (sc["name"] + ".truth"), contributions=False)
+    rig = sio.load_rig(d)
     meta = sio.load_trials(d).set_index("trial")
-    sigs = {t: stages.ingest(d, t, tmp_path / f"{t}.parquet") for t in meta.index}
-    # hold_rows off: with the hold rows (the default) H(q) explains most of what the drift member corrects on this
-    # trial, and the causal member is no better than none there (docs/benchmarks.md); the member itself is what this
-    # test measures
-    est = SelfSensingEstimator(config=SensingConfig(hold_rows="off"), rig=sio.load_rig(d)).fit(sigs, meta)
-    assert est.offset_drift_, "the bundled sample no longer adopts the offset-drift member: pick another dataset"
+    sigs = {t: prepare_trial(sio.trial_signals(d, t, rig=rig), rig) for t in meta.index}
+    est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit(sigs, meta)
+    assert est.offset_drift_, "the drifting device no longer adopts the offset-drift member"
     with pytest.raises(NotImplementedError, match="drift='causal'"):
         SelfSensingStream(est)
     none = SelfSensingEstimator.from_dict(est.to_dict(), est.rig)
     none.offset_drift_ = False
-    t = "val_disp_large"
+    t = "val_disp_free_mixed"
     raw = sio.read_log(d / meta.loc[t, "file"])
     cols = [raw[c].to_numpy() for c in ("u_cmd", "v_shunt", "relay", "t")]
     s = SelfSensingStream(est, drift="causal")
