@@ -8,6 +8,7 @@ can also be used from a notebook or the ``selfsense`` command without Snakemake.
 """
 from __future__ import annotations
 
+import contextvars
 import io
 import json
 import logging
@@ -459,7 +460,10 @@ def report(dataset_dir: str | Path, results_dir: str | Path, out_html: str | Pat
     return str(out_html)
 
 
-_LOCAL = threading.local()
+#: the log file of the job running in the current thread (a context variable: like a thread-local, and carried into
+#: the worker threads a job starts with a copy of its context, e.g. the H(q) selection's,
+#: selfsense.hysteresis.models.select.cv_workers)
+_LOG_FH: contextvars.ContextVar = contextvars.ContextVar("selfsense_job_log", default=None)
 _INSTALL_LOCK = threading.Lock()
 
 
@@ -471,7 +475,7 @@ class _ThreadStream(io.TextIOBase):
         self._fallback = fallback
 
     def _target(self):
-        return getattr(_LOCAL, "fh", None) or self._fallback
+        return _LOG_FH.get() or self._fallback
 
     def write(self, s):
         return self._target().write(s)
@@ -487,7 +491,7 @@ class _ThreadLogHandler(logging.Handler):
     """Logging records of ``selfsense`` (and Python warnings) go to the current thread's job log, if any."""
 
     def emit(self, record):
-        fh = getattr(_LOCAL, "fh", None)
+        fh = _LOG_FH.get()
         if fh is not None:
             fh.write(self.format(record) + "\n")
 
@@ -548,9 +552,8 @@ class logged:
         self._t0 = time.perf_counter()
         _install_routing()
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        self._saved = getattr(_LOCAL, "fh", None)
         self._fh = open(self.log_path, "w")
-        _LOCAL.fh = self._fh
+        self._token = _LOG_FH.set(self._fh)
         return self
 
     def __exit__(self, exc_type, exc, tb):
@@ -561,7 +564,7 @@ class logged:
             self._fh.write(f"ERROR: {exc}\n")
             traceback.print_exception(exc_type, exc, tb, file=self._fh)
         self._fh.write(f"timing: startup_s={self._startup:.3f} compute_s={compute:.3f}\n")
-        _LOCAL.fh = self._saved
+        _LOG_FH.reset(self._token)
         self._fh.close()
         if exc is not None:
             print(f"ERROR: {exc}", file=sys.stderr)
@@ -606,12 +609,16 @@ def _one_blas_thread() -> None:
     single_thread_blas()
 
 
-def run_job(name: str, input, output, params, wildcards, log) -> None:
+def run_job(name: str, input, output, params, wildcards, log, threads: int = 1) -> None:
     """Body of the workflow's ``run:`` rules (workflow/rules/pipeline.smk): the stage of rule ``name`` inside
-    :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster)."""
+    :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster). ``threads``:
+    the rule's ``threads``, the candidates the H(q) selection may cross-validate at a time
+    (:func:`selfsense.hysteresis.models.select.cv_workers`; the same bits for every count)."""
+    from selfsense.hysteresis.models.select import cv_workers
+
     _one_blas_thread()
     try:
-        with logged(log[0], exit_on_bad_input=False):
+        with logged(log[0], exit_on_bad_input=False), cv_workers(threads):
             _JOBS[name](input, output, params, wildcards)
     except (ValueError, OSError, KeyError) as exc:  # bad input: its message, the traceback stays in the log
         raise BadInput(f"{type(exc).__name__}: {exc}") from None

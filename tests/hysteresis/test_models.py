@@ -185,6 +185,39 @@ def test_selection_prefers_hysteresis_and_reports_baselines():
     assert len(labels["pi"]["cv_rms_v"]) == 5
 
 
+def test_selection_in_worker_threads_is_bit_identical_and_keeps_the_table_order():
+    """cv_workers(n): the candidates are cross-validated n at a time (the non-convex ones first), and the table, its
+    order and the selected model are the same bits as one after the other."""
+    from selfsense.hysteresis.models.select import cv_workers
+
+    q1, q2 = _drive(seed=6), _drive(seed=7)
+    u = lambda q: q / QREF
+    y = [40 * u(q) + 5 * play_operator(u(q), [0.15])[:, 0] for q in (q1, q2)]
+    cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}),
+             ("duhem", {"degree": 2, "ridge": 1e-7}))
+    serial = select_h_model([q1, q2], y, DT, candidates=cands)
+    with cv_workers(3):
+        par = select_h_model([q1, q2], y, DT, candidates=cands)
+    assert json.dumps(par.table) == json.dumps(serial.table)
+    assert [r["kind"] for r in par.table] == [k for k, _ in cands]
+    assert json.dumps(par.model.to_dict()) == json.dumps(serial.model.to_dict())
+
+
+def test_job_log_reaches_the_worker_threads_of_a_job(tmp_path):
+    """Output of the threads a job starts with a copy of its context (the selection's workers) goes to the job's
+    log, not to the Snakemake process's terminal."""
+    import contextvars
+    from concurrent.futures import ThreadPoolExecutor
+
+    from selfsense import stages
+
+    log = tmp_path / "job.log"
+    with stages.logged(log, exit_on_bad_input=False):
+        with ThreadPoolExecutor(2) as pool:
+            pool.submit(contextvars.copy_context().run, print, "from a worker thread").result()
+    assert "from a worker thread" in log.read_text()
+
+
 def test_selection_warns_naming_the_trials_when_nothing_beats_a_line():
     rng = np.random.default_rng(8)
     q = _drive(seed=8)

@@ -6,7 +6,8 @@ has set its limit, so before ``selfsense.determinism.single_thread_blas`` the H(
 BLAS threads depending on which worker picked the job, and ``model/hysteresis.json`` / ``model/sensing.json``
 differed in the last bits between two identical Snakemake runs. Here the calibration stage runs in two processes:
 one on one BLAS thread in its main thread, one with ``OPENBLAS_NUM_THREADS=2`` in a second worker thread while the
-first worker (which set the limit) is still alive, as in the Snakemake process. Both must write identical files.
+first worker (which set the limit) is still alive, as in the Snakemake process, and with the rule's ``threads: 2``
+(the H(q) selection cross-validates two candidates at a time). Both must write identical files.
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from types import SimpleNamespace as NS
 from selfsense import stages
 
 sig, cfg, out, mode = sys.argv[1], json.loads(sys.argv[2]), sys.argv[3], sys.argv[4]
-ds = sys.argv[5]
+ds, threads = sys.argv[5], int(sys.argv[6])
 class Files(list):
     def __init__(self, items, **named):
         super().__init__(items)
@@ -39,7 +40,7 @@ signals = [f"{sig}/cal_free.parquet", f"{sig}/cal_blocked.parquet"]
 def calibrate():
     stages.run_job("calibrate_hysteresis", Files(signals, signals=signals),
                    Files([f"{out}/hysteresis.json", f"{out}/h_selection.csv"]), NS(dataset_dir=ds, config=cfg), NS(),
-                   [f"{out}/calibrate.log"])
+                   [f"{out}/calibrate.log"], threads=threads)
     stages.run_job("regress_coefficients", Files(signals, signals=signals, hysteresis=f"{out}/hysteresis.json"),
                    Files([f"{out}/sensing.json"]), NS(dataset_dir=ds), NS(), [f"{out}/regress.log"])
 
@@ -78,14 +79,15 @@ def test_calibration_is_bit_identical_across_blas_thread_settings_and_worker_thr
     cfg = {k: cfg.get(k, {}) for k in ("calibration", "estimation")}
     script = tmp_path / "job.py"
     script.write_text(_JOB)
-    runs = {"main_1thread": ("main", "1"), "worker_2threads": ("worker", "2")}
+    runs = {"main_1thread": ("main", "1", "1"), "worker_2threads": ("worker", "2", "2")}
     procs = {}
-    for name, (mode, n) in runs.items():
+    for name, (mode, n, cv_threads) in runs.items():
         (tmp_path / name).mkdir()
         env = dict(os.environ, OPENBLAS_NUM_THREADS=n, OMP_NUM_THREADS=n, MKL_NUM_THREADS=n,
                    PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]))
         procs[name] = subprocess.Popen(
-            [sys.executable, str(script), str(sig), json.dumps(cfg), str(tmp_path / name), mode, str(SAMPLE)],
+            [sys.executable, str(script), str(sig), json.dumps(cfg), str(tmp_path / name), mode, str(SAMPLE),
+             cv_threads],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     for name, p in procs.items():
         out, _ = p.communicate(timeout=600)

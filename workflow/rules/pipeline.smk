@@ -56,7 +56,10 @@ rule calibrate_hysteresis:
         res("{dataset}", "logs", "calibrate_hysteresis.log"),
     benchmark:
         res("{dataset}", "benchmarks", "calibrate_hysteresis.tsv")
-    threads: 1
+    # nothing else of the dataset can run beside it (every later job needs the model): the H(q) selection
+    # cross-validates two candidates at a time (selfsense.hysteresis.models.select.cv_workers, the same bits on
+    # any number of threads); Snakemake lowers it to --cores
+    threads: 2
     resources:
         mem_mb=4000,
         runtime=30,
@@ -64,7 +67,15 @@ rule calibrate_hysteresis:
         dataset_dir=dataset_dir,
         config=SENSING_CONFIG,
     run:
-        stages.run_job("calibrate_hysteresis", input, output, params, wildcards, log)
+        stages.run_job(
+            "calibrate_hysteresis",
+            input,
+            output,
+            params,
+            wildcards,
+            log,
+            threads=threads,
+        )
 
 
 rule regress_coefficients:

@@ -23,7 +23,7 @@ def n_terms(deg: int) -> int:
     return (deg + 1) * (deg + 2) // 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def duhem_terms(x, w, deg, out, dout_dw):
     """Monomials ``x^i w^j`` (i + j <= deg, ordered by i then j) and their derivatives in w."""
     m = 0
@@ -46,7 +46,7 @@ def duhem_state() -> np.ndarray:
     return np.array([0.0, 1.0, 0.0, 0.0, 0.0])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def duhem_run(u, c, deg, v_lo, v_span, eps, v_min, v_max, stride, jac, st):
     """Run the map from the state ``st`` (:func:`duhem_state`: v = 0, ascending first, for the relaxed state),
     which is updated in place. ``c`` = [ascending | descending] coefficients.

@@ -34,7 +34,7 @@ def grid_state(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return np.empty(GRID_STACK), np.empty(GRID_STACK), np.zeros(5), np.zeros(n * (n + 1) // 2)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prim(x, b0, top):
     """Integral from -inf to x of (clip(a, b0, top) - b0) da (top > b0)."""
     if x <= b0:
@@ -67,7 +67,7 @@ def preisach_grid_output(u, lo, hi, n, w, state=None):
                  np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc)[:, 0]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cell_fraction(Ms, ms, K, a0, a1, b0, b1, full):
     """Up-fraction of the cell [a0, a1] x [b0, b1] under the staircase (``Ms``, ``ms``, depth ``K``)."""
     area = 0.0
@@ -88,7 +88,7 @@ def _cell_fraction(Ms, ms, K, a0, a1, b0, b1, full):
     return area / full
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mark(dirty, dl, nd, n, lo, h, a_gt, a_lt, b_lt, b_gt):
     """Mark the cells with a1 > a_gt, a0 < a_lt, b0 < b_lt and b1 > b_gt (the cells an input step can change).
     Only the index ranges around the bounds are visited (one cell of margin); the conditions themselves are
@@ -114,7 +114,7 @@ def _mark(dirty, dl, nd, n, lo, h, a_gt, a_lt, b_lt, b_gt):
     return nd
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
     """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it); with
     ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample). The state (stacks
@@ -233,7 +233,7 @@ def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
     return F
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _relax(u, g, zs, j):
     """``u - z`` with ``z += g (u - z)`` per sample, starting from ``zs[j]`` and leaving the last z there."""
     z = zs[j]
@@ -266,7 +266,7 @@ def relaxation_output(u, dt: float, tau_s, w, state=None) -> np.ndarray:
     return _relax_output(u, g, np.asarray(w, dtype=float)[:len(g)], zs)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _relax_output(u, g, w, zs):
     """``sum_j w_j (u - z_j)``, ``z_j += g_j (u - z_j)``, summed in the order of j from 0 (the sum of
     ``w_j * _relax(u, g_j)`` columns, bit for bit)."""
@@ -292,7 +292,7 @@ def play_output(u, r, w, state=None):
                         np.ascontiguousarray(w, dtype=np.float64), z)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _play_output(u, r, w, z):
     y = np.zeros(u.size)
     for k in range(u.size):
@@ -306,7 +306,7 @@ def _play_output(u, r, w, z):
     return y
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def play_features(u, r, stride):
     """Plays ``P_{r_i}[u]`` from z = 0, every ``stride``-th row (the state runs over every sample)."""
     z = np.zeros(r.size)

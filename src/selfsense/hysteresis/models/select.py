@@ -14,6 +14,8 @@ PI baseline is reported with a warning (``warnings`` of the result), naming the 
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import logging
 from dataclasses import dataclass, field
 
@@ -43,6 +45,30 @@ DEFAULT_CANDIDATES: tuple = (
 
 #: default fold layout of the selection (``blocked_folds(..., rotate=...)``)
 ROTATE_FOLDS = True
+
+#: threads that :func:`select_h_model` may use for its candidates (:func:`cv_workers`); 1 = one after the other
+_CV_WORKERS: contextvars.ContextVar[int] = contextvars.ContextVar("selfsense_cv_workers", default=1)
+
+
+@contextlib.contextmanager
+def cv_workers(n: int):
+    """Let :func:`select_h_model` cross-validate up to ``n`` candidates at a time, in threads, inside this block
+    (of this thread or task only: a context variable). Each candidate's blocked CV is independent of the others
+    and computed by the same code on the same inputs in whichever thread, so the selection table -- and the model
+    -- are bit-identical for every ``n`` (the BLAS libraries stay pinned to one thread each,
+    :func:`selfsense.determinism.single_thread_blas`). The pipeline's ``calibrate_hysteresis`` job sets it to its
+    ``threads`` (nothing else runs beside it)."""
+    token = _CV_WORKERS.set(max(1, int(n)))
+    try:
+        yield
+    finally:
+        _CV_WORKERS.reset(token)
+
+
+def _cost_rank(kind: str) -> int:
+    """Order in which parallel workers take the candidates: the non-convex searches (the slowest) first, so that
+    no worker is left with a long one at the end. Only the order of work changes, never the table's."""
+    return 0 if kind == "duhem" else 1
 
 
 @dataclass
@@ -310,8 +336,22 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
     holds = holds if holds else None
-    table = [cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
-                          rotate, thin, holds) for kind, params in candidates]
+    def row(cand):
+        kind, params = cand
+        return cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
+                            rotate, thin, holds)
+
+    workers = min(_CV_WORKERS.get(), len(candidates))
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        order = sorted(range(len(candidates)), key=lambda i: _cost_rank(candidates[i][0]))
+        with ThreadPoolExecutor(workers, thread_name_prefix="h-cv") as pool:
+            # each worker runs in a copy of this thread's context (the job's log routing, selfsense.stages.logged)
+            futs = {i: pool.submit(contextvars.copy_context().run, row, candidates[i]) for i in order}
+            table = [futs[i].result() for i in range(len(candidates))]
+    else:
+        table = [row(c) for c in candidates]
     _reject_unstable(table)
     ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
     if not ok:
