@@ -22,6 +22,9 @@ rule gap_diagnose:
         res("{dataset}", "logs", "gap_diagnose.log"),
     benchmark:
         res("{dataset}", "benchmarks", "gap_diagnose.tsv")
+    # the longest of the jobs after the estimates (figures, compare_modes, gap_diagnose): started first, so that
+    # the other two share the second core beside it instead of leaving it to run alone at the end
+    priority: 1
     conda:
         "../envs/selfsense.yaml"
     threads: 1
