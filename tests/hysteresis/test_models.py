@@ -212,9 +212,8 @@ def test_job_log_reaches_the_worker_threads_of_a_job(tmp_path):
     from selfsense import stages
 
     log = tmp_path / "job.log"
-    with stages.logged(log, exit_on_bad_input=False):
-        with ThreadPoolExecutor(2) as pool:
-            pool.submit(contextvars.copy_context().run, print, "from a worker thread").result()
+    with stages.logged(log, exit_on_bad_input=False), ThreadPoolExecutor(2) as pool:
+        pool.submit(contextvars.copy_context().run, print, "from a worker thread").result()
     assert "from a worker thread" in log.read_text()
 
 
