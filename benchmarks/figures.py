@@ -39,6 +39,7 @@ DATES = {
     "gap_tip": "2026-11-24",
     "stage_chain": "2026-11-26",
     "tip_amplifier": "2026-11-26",
+    "tip_stress": "2026-11-26",
     "external": "2026-11-24",
 }
 COMMANDS = {
@@ -62,6 +63,8 @@ COMMANDS = {
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
+    "tip_stress": "python benchmarks/tip_cases.py --seed 4711 --cases 1,18,24,25,37,56,71,74 --jobs 1 "
+                  "--out benchmarks/gap_tip/stress_simfix.md",
     "external": "selfsense fit-external --data-dir DIR --out benchmarks/external/fit_external.md",
 }
 FAMILY = {"preisach": "Preisach", "gpi": "generalised PI", "jiles_atherton": "Jiles-Atherton",
@@ -337,11 +340,26 @@ def gap_figures() -> list[Fig]:
     from selfsense.gap.blind import cost_table
 
     recs = [json.loads(x) for x in gzip.open(ROOT / "benchmarks/gap_tip/tip_cases.jsonl.gz", "rt")]
+    ssim = "benchmarks/gap_tip/stress_simfix.jsonl.gz"
     for r in cost_table(recs):
         if r["costly"]:
+            note = (" (simulated before the simulator's stress fix: superseded by the rescore below)"
+                    if r["effect"] == "load.stress_hysteresis" and (ROOT / ssim).exists() else "")
             out.append(T(f"gap diagnostic, tip tier, {r['effect']}: cases costing >= 3 points named (largest cost "
-                         f"{r['max_cost']:.1f} points)", f"{r['named']} of {r['costly']}", ">= 90 %",
+                         f"{r['max_cost']:.1f} points){note}", f"{r['named']} of {r['costly']}", ">= 90 %",
                          _met(r["named"] >= 0.9 * r["costly"])))
+    if (ROOT / ssim).exists():
+        st = [json.loads(x) for x in gzip.open(ROOT / ssim, "rt")]
+        ct = cost_table(st)
+        costly = sum(r["costly"] for r in ct)
+        named = sum(r["named"] for r in ct)
+        out.append(Fig(f"gap diagnostic, tip tier, load.stress_hysteresis cases rescored after the simulator's stress "
+                       f"fix ({len(st)} cases, the current estimator): the effect's cost in Table 3 (case minus its "
+                       f"effect-free twin), median (largest); cases costing >= 3 points named",
+                       f"{statistics.median(r['true_shrink'] for r in st):.2f} "
+                       f"({max(r['true_shrink'] for r in st):.2f}) points; {named} of {costly}", ">= 90 % named",
+                       _met(costly > 0 and named >= 0.9 * costly), ssim, COMMANDS["tip_stress"],
+                       DATES["tip_stress"]))
     asrc = "benchmarks/gap_tip/amplifier_member.jsonl.gz"
     if (ROOT / asrc).exists():
         amp = [json.loads(x) for x in gzip.open(ROOT / asrc, "rt")]
