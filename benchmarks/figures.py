@@ -40,6 +40,7 @@ DATES = {
     "stage_chain": "2026-11-26",
     "tip_amplifier": "2026-11-26",
     "tip_stress": "2026-11-26",
+    "amplifier_blind": "2026-11-26",
     "external": "2026-11-24",
 }
 COMMANDS = {
@@ -63,6 +64,8 @@ COMMANDS = {
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
+    "amplifier_blind": "python benchmarks/member_ab.py --member amplifier --effect rate.amplifier --seed 20261126 "
+                       "--n 8 --jobs 2 --out benchmarks/gap_tip/amplifier_blind.md",
     "tip_stress": "python benchmarks/tip_cases.py --seed 4711 --cases 1,18,24,25,37,56,71,74 --jobs 1 "
                   "--out benchmarks/gap_tip/stress_simfix.md",
     "external": "selfsense fit-external --data-dir DIR --out benchmarks/external/fit_external.md",
@@ -340,6 +343,20 @@ def gap_figures() -> list[Fig]:
     from selfsense.gap.blind import cost_table
 
     recs = [json.loads(x) for x in gzip.open(ROOT / "benchmarks/gap_tip/tip_cases.jsonl.gz", "rt")]
+    bsrc = "benchmarks/gap_tip/amplifier_blind.jsonl.gz"
+    if (ROOT / bsrc).exists():
+        ab = [json.loads(x) for x in gzip.open(ROOT / bsrc, "rt")]
+        ad = [r for r in ab if r["adopted"]]
+        if ad:
+            better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
+            out.append(Fig(f"amplifier member of the voltage link at first contact: the first {len(ab)} rate.amplifier "
+                           "tip cases of a seed not used in its development; adopted; where adopted, Table 3 lower "
+                           "than with the member off; median Table 3 member off -> auto (effect-free twins)",
+                           f"{len(ad)} of {len(ab)}; {better} of {len(ad)}; "
+                           f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
+                           f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
+                           f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", bsrc,
+                           COMMANDS["amplifier_blind"], DATES["amplifier_blind"]))
     ssim = "benchmarks/gap_tip/stress_simfix.jsonl.gz"
     for r in cost_table(recs):
         if r["costly"]:
