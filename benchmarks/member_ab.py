@@ -74,8 +74,8 @@ def main(argv=None) -> int:
         i += 1
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
         recs = list(ex.map(_one, [(c, a.seed, a.member) for c in cases]))
-    rows = ["| case | family | member adopted | Table 3, member auto [points] | member off | effect-free twin | "
-            "calibration trials' error, auto / off |", "|---|---|---|---|---|---|---|"]
+    rows = [("| case | family | member adopted | Table 3, member auto [points] | member off | effect-free twin | "
+             "calibration trials' error, auto / off |"), "|---|---|---|---|---|---|---|"]
     for r in recs:
         rows.append(f"| {r['case']} | {r['family']} | {r['adopted']} | {r['table3_auto']:.2f} | {r['table3_off']:.2f} "
                     f"| {r['table3_twin']:.2f} | {r['calibration_auto']:.2f} / {r['calibration_off']:.2f} |")
