@@ -52,9 +52,10 @@ COMMANDS = {
                     "--out benchmarks/cross_device/whole_device/thesis",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                               "--out benchmarks/cross_device/whole_device/thesis_hold_rows",
-    # the clean devices rescored after the Duhem model got its own linear term: Bouc-Wen 10 devices, then the other
-    # four families 5 each into the same folder
-    "whole_device_duhem_linear": "selfsense devices bench --n {n} --families {families} --presets clean --jobs 1 "
+    # the devices rescored after the Duhem model got its own linear term, into one folder: clean Bouc-Wen 10 devices,
+    # then the other four families 5 each (--jobs 1); drift Bouc-Wen 10 devices (--jobs 2: the records do not depend on
+    # it, WHOLE_DUHEM_JOBS)
+    "whole_device_duhem_linear": "selfsense devices bench --n {n} --families {families} --presets {preset} --jobs {jobs} "
                                  "--protocol thesis --randomise device "
                                  "--out benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear",
     "hold_rows": "python benchmarks/hold_rows.py --seeds 0-2 --holds 0,8 --jobs 2 --out benchmarks/hold_rows",
@@ -173,6 +174,8 @@ def _device_table_figures(src: str, what: str, command: str, date: str,
 
 WHOLE_HOLD = "benchmarks/cross_device/whole_device/thesis_hold_rows"
 WHOLE_DUHEM = "benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear"
+#: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
+WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
 
 def _duhem_linear_rescore() -> dict[tuple[str, str], dict]:
@@ -231,7 +234,8 @@ def duhem_linear_figures(groups: dict[tuple[str, str], dict]) -> list[Fig]:
             raise SystemExit(f"benchmarks/figures.py: {WHOLE_DUHEM}: {fam} {pre} has seeds {sorted(g['seeds'])}, "
                              f"not 0-{n - 1}: {COMMANDS['whole_device_duhem_linear']} does not describe them")
         cmd = COMMANDS["whole_device_duhem_linear"].format(
-            n=n, families=",".join(sorted({f for (f, _), h in groups.items() if len(h["new"]) == n})))
+            n=n, preset=pre, jobs=WHOLE_DUHEM_JOBS[pre],
+            families=",".join(sorted({f for (f, p), h in groups.items() if p == pre and len(h["new"]) == n})))
         out.append(Fig(f"{FAMILY.get(fam, fam)}, whole-device randomisation, thesis calibration, with the hold rows, "
                        f"with the Duhem linear term (commit of 2026-11-26), {pre} preset, {n} devices "
                        f"({int(new['n_failed'])} failed): median (p90) displacement / force; {then}",
