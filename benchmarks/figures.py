@@ -53,8 +53,8 @@ COMMANDS = {
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                               "--out benchmarks/cross_device/whole_device/thesis_hold_rows",
     # the devices rescored after the Duhem model got its own linear term, into one folder: clean Bouc-Wen 10 devices,
-    # then the other four families 5 each (--jobs 1); drift Bouc-Wen 10 devices (--jobs 2: the records do not depend on
-    # it, WHOLE_DUHEM_JOBS)
+    # then the other four families 5 each (--jobs 1); drift Bouc-Wen, then Jiles-Atherton, 10 devices each (--jobs 2:
+    # the records do not depend on it, WHOLE_DUHEM_JOBS)
     "whole_device_duhem_linear": "selfsense devices bench --n {n} --families {families} --presets {preset} --jobs {jobs} "
                                  "--protocol thesis --randomise device "
                                  "--out benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear",
