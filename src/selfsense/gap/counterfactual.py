@@ -18,9 +18,10 @@ A correction acts where the stage says the effect acts:
 Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset
 drift, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit, :mod:`selfsense.chain.amplifier`) are not corrected with the stage's coefficients: the estimator is recalibrated
 with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
-member, identified jointly with H(q) and the sensing coefficients. A member the fitted estimator already carries
-(adopted for Table 3) shrinks nothing further; its contribution to Table 3 is the chain refitted without it
-(:func:`chain_contributions`).
+member, identified jointly with H(q) and the sensing coefficients. For a member the fitted estimator already carries
+(adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it
+forced off, minus Table 3 (the same number as :func:`chain_contributions`), so the shrink is always measured from the
+chain without the effect's model.
 
 The estimator is then recalibrated on the corrected calibration trials and scored on the corrected validation
 trials (thesis Table 3 style: mean |error| in % of the reference range per trial, then per measurement), for no
@@ -199,7 +200,20 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                    n_boot: int = 200, seed: int = 0, max_effects: int = 5, fitted=None,
                    refit_outputs: bool = True) -> dict:
     """Tip error before / after each confirmed effect's fixed correction and all together, Shapley values and
-    bootstrap intervals. ``make_estimator(rig)`` returns an unfitted estimator with ``fit`` / ``estimate``."""
+    bootstrap intervals. ``make_estimator(rig)`` returns an unfitted estimator with ``fit`` / ``estimate``.
+
+    "How far it shrinks once the effect is modelled" is always measured from the chain *without* the effect's model:
+
+    - a confirmed chain member the fitted estimator does not carry is forced on: shrink = Table 3 - Table 3 of the
+      chain recalibrated with it;
+    - a confirmed chain member the fitted estimator already carries (adopted for Table 3): shrink = Table 3 of the
+      chain recalibrated with it forced off - Table 3, and that table is the effect's ``base``; the estimate a user
+      gets and the diagnosis cannot disagree, and the number is the member's own contribution, not 0;
+    - any other effect: Table 3 - Table 3 after its stage-fitted correction.
+
+    All together and the Shapley values are the game on the chain with every carried confirmed member off (``base``
+    of the result; Table 3 itself where none is carried): v(S) = base - Table 3 with the members of S on and the
+    corrections of S applied."""
     from itertools import combinations
 
     from .stats import shapley_exact
@@ -211,57 +225,80 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     carried = adopted_members(fitted)
     form = _form_of(fitted)
 
-    def chain_of(S) -> dict:  # chain members switched on by S (only those the fitted estimator does not carry yet)
+    def is_carried(n) -> bool:
+        return can_force and n in CHAIN_MEMBERS and bool(carried.get(CHAIN_MEMBERS[n]))
+
+    def members_of(S, bare: bool) -> dict:
+        """Chain members switched on by S (those the fitted estimator does not carry yet); with ``bare``, the carried
+        confirmed members outside S switched off."""
         if not can_force:
             return {}
-        return {CHAIN_MEMBERS[n]: "on" for n in S if n in CHAIN_MEMBERS and not carried.get(CHAIN_MEMBERS[n])}
+        d = {CHAIN_MEMBERS[n]: "on" for n in S if n in CHAIN_MEMBERS and not is_carried(n)}
+        if bare:
+            d.update({CHAIN_MEMBERS[n]: "off" for n in names if is_carried(n) and n not in S})
+        return d
 
-    def inputs_touched(S) -> bool:  # a correction of Q or V changes the calibration: the estimator is refitted
-        return bool(chain_of(S)) or any(k in ("q", "V") for n in S for per in corr[n].values() for k in per)
+    def inputs_touched(S, mem) -> bool:  # a correction of Q or V changes the calibration: the estimator is refitted
+        return bool(mem) or any(k in ("q", "V") for n in S for per in corr[n].values() for k in per)
 
-    def table(S: frozenset):
-        if S not in tabs:
+    def table(S: frozenset, bare: bool = True, mem: dict | None = None):
+        mem = members_of(S, bare) if mem is None else mem
+        key = (S, tuple(sorted(mem.items())))
+        if key not in tabs:
+            # a carried member's own correction is the member itself (``corrections(chain=True)`` gives none)
             tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
             # output-only corrections (charge-free motion, load stage) leave the estimator's inputs unchanged; with
             # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
             # estimator costs tens of seconds), which ignores the small change of its coefficients
-            reuse = fitted is not None and (not S or (not refit_outputs and not inputs_touched(S)))
-            tabs[S] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None,
-                                members=chain_of(S), form=form)
-        return tabs[S]
+            plain = not mem and not any(per for n in S for per in corr[n].values())
+            reuse = fitted is not None and (plain or (not refit_outputs and not inputs_touched(S, mem)))
+            tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None,
+                                  members=mem, form=form)
+        return tabs[key]
 
-    base = table(frozenset())
-    res = {"before": _summary(base), "per_trial_before": {t: r["error"] for t, r in base.items()}, "effects": {}}
+    fitted_tab = table(frozenset(), bare=False)
+    res = {"before": _summary(fitted_tab), "per_trial_before": {t: r["error"] for t, r in fitted_tab.items()},
+           "effects": {}}
     if not names:
         res["after_all"] = res["before"]
         return res
+    base = table(frozenset())
+    res["base"] = _summary(base)
+    res["base_members_off"] = sorted(CHAIN_MEMBERS[n] for n in names if is_carried(n))
+    rng = np.random.default_rng(seed)
+    trials_v = list(fitted_tab)
+
+    def interval(hi: dict, lo: dict) -> list:
+        d = np.concatenate([np.asarray(hi[t]["blocks"]) - np.asarray(lo[t]["blocks"]) for t in trials_v])
+        bs = [float(np.mean(d[rng.integers(0, len(d), len(d))])) for _ in range(n_boot)]
+        return [float(np.quantile(bs, 0.05)), float(np.quantile(bs, 0.95))]
+
+    for n in names:
+        if is_carried(n):  # the member's own contribution: the chain without it against the fitted chain
+            without = table(frozenset(), mem={CHAIN_MEMBERS[n]: "off"})
+            res["effects"][n] = {"after": res["before"], "base": _summary(without),
+                                 "shrink": _summary(without)["mean"] - res["before"]["mean"],
+                                 "shrink_interval_90": interval(without, fitted_tab),
+                                 "how": "carried by the estimate (adopted for Table 3): Table 3 of the chain "
+                                        "recalibrated without it, minus Table 3"}
+            continue
+        after = table(frozenset([n]), bare=False)
+        res["effects"][n] = {"after": _summary(after), "base": res["before"],
+                             "shrink": res["before"]["mean"] - _summary(after)["mean"],
+                             "shrink_interval_90": interval(fitted_tab, after)}
+        if n in CHAIN_MEMBERS and can_force:
+            res["effects"][n]["how"] = "the estimator recalibrated with the chain member forced on"
     for k in range(1, len(names) + 1):
         if len(names) > 3 and k not in (1, len(names)):
             continue
         for S in combinations(names, k):
             table(frozenset(S))
-    rng = np.random.default_rng(seed)
-    trials_v = list(base)
-
-    def interval(after: dict) -> list:
-        d = np.concatenate([np.asarray(base[t]["blocks"]) - np.asarray(after[t]["blocks"]) for t in trials_v])
-        bs = [float(np.mean(d[rng.integers(0, len(d), len(d))])) for _ in range(n_boot)]
-        return [float(np.quantile(bs, 0.05)), float(np.quantile(bs, 0.95))]
-
-    for n in names:
-        after = tabs[frozenset([n])]
-        res["effects"][n] = {"after": _summary(after), "shrink": res["before"]["mean"] - _summary(after)["mean"],
-                             "shrink_interval_90": interval(after)}
-        if n in CHAIN_MEMBERS:
-            res["effects"][n]["how"] = ("carried by the estimate (adopted for Table 3): nothing further to shrink"
-                                        if carried.get(CHAIN_MEMBERS[n]) else
-                                        "the estimator recalibrated with the chain member forced on")
     allS = frozenset(names)
-    res["after_all"] = _summary(tabs[allS])
-    res["shrink_all"] = res["before"]["mean"] - res["after_all"]["mean"]
-    res["shrink_all_interval_90"] = interval(tabs[allS])
+    res["after_all"] = _summary(table(allS))
+    res["shrink_all"] = res["base"]["mean"] - res["after_all"]["mean"]
+    res["shrink_all_interval_90"] = interval(base, table(allS))
     if len(names) <= 3:
-        res["shapley"] = shapley_exact(names, lambda S: res["before"]["mean"] - _summary(table(S))["mean"])
+        res["shapley"] = shapley_exact(names, lambda S: res["base"]["mean"] - _summary(table(frozenset(S)))["mean"])
     return res
 
 
