@@ -132,3 +132,36 @@ def test_shapley_shares_of_named_effects_sum_to_the_joint_shrink(thr):
     assert all(abs(x) > 0.05 for x in sh.values()), sh
     assert sum(sh.values()) == pytest.approx(cf["shrink_all"], abs=1e-9)
     assert cf["shrink_all"] > 0.5   # measured 2.17 points of range
+
+
+def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
+    """"How far it shrinks" for a chain member the fitted default estimator already carries is measured from the
+    chain without it: Table 3 of the chain recalibrated with the member forced off minus Table 3. It equals the
+    report's chain table (``chain_contributions``), is positive where the member helps, and all together / Shapley
+    start from the same base. (Before, a carried member was given 0, and the tip tier's error was 1 by construction.)"""
+    from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case
+    from selfsense.gap.counterfactual import adopted_members, chain_contributions, counterfactual
+    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+
+    c = draw_tip_case(51, 4711)   # a Jiles-Atherton device with leakage (6.4 nS), which the default estimator adopts
+    assert c["family"] == "jiles_atherton" and set(c["effects"]) == {"slow.leakage"}
+    tr, me, rig = simulate_family_case(c["family"], c["device_seed"], c["effects"], c["noise_seed"], T_CASE, FS_CASE)
+    mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
+    fitted = mk(rig).fit(tr, me)
+    assert adopted_members(fitted)["leakage"]
+    v = S.diagnose_stages(tr, me, rig, thr)
+    assert v["top"] == "slow.leakage"
+    cf = counterfactual(tr, me, rig, v, mk, n_boot=50, seed=0, max_effects=1, fitted=fitted)
+    tables = cf.pop("_tables")
+    e = cf["effects"]["slow.leakage"]
+    assert "carried" in e["how"]
+    assert e["after"] == cf["before"]
+    assert e["shrink"] == pytest.approx(e["base"]["mean"] - cf["before"]["mean"], abs=1e-12)
+    assert e["shrink"] > 2.0   # measured 5.09 points (the effect-free twin: 5.79 below the chain without leakage)
+    lo, hi = e["shrink_interval_90"]
+    assert lo < e["shrink"] < hi
+    assert cf["base_members_off"] == ["leakage"]
+    assert cf["shrink_all"] == pytest.approx(e["shrink"], abs=1e-12)
+    assert cf["shapley"]["slow.leakage"] == pytest.approx(e["shrink"], abs=1e-12)
+    ch = chain_contributions(tr, me, rig, mk, fitted, tables=tables)
+    assert ch["members"]["leakage"]["contribution"] == pytest.approx(e["shrink"], abs=1e-12)

@@ -299,14 +299,26 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     res["shrink_all_interval_90"] = interval(base, table(allS))
     if len(names) <= 3:
         res["shapley"] = shapley_exact(names, lambda S: res["base"]["mean"] - _summary(table(frozenset(S)))["mean"])
+    # the uncorrected chain's tables by forced members, for :func:`chain_contributions` (not JSON: pop it)
+    res["_tables"] = {mem: t for (S, mem), t in tabs.items() if not S}
     return res
 
 
-def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, fitted) -> dict:
+def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, fitted,
+                        tables: dict | None = None) -> dict:
     """Before / after each charge-link member the fitted estimator carries: Table 3 of the chain refitted with that
     member forced off against Table 3 (the fitted chain), and with all carried members off. Members not carried are
-    listed with the reason the calibration gave (``fit_report_``)."""
+    listed with the reason the calibration gave (``fit_report_``). ``tables``: tip tables already computed for the
+    same trials and fitted form, by forced members (``counterfactual(...)["_tables"]``), reused instead of refitted."""
     carried = adopted_members(fitted)
+    tables = tables or {}
+
+    def without(mem: dict) -> dict:
+        key = tuple(sorted(mem.items()))
+        if key not in tables:
+            tables[key] = tip_table(trials, meta, rig, make_estimator, members=mem, form=form)
+        return _summary(tables[key])
+
     if not carried:
         return {}
     form = _form_of(fitted)
@@ -319,12 +331,11 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
                                         "current plateau of every trial" if m == "amplifier" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
-            without = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off"}, form=form))
-            row.update({"without": without, "contribution": without["mean"] - base["mean"]})
+            w = without({m: "off"})
+            row.update({"without": w, "contribution": w["mean"] - base["mean"]})
         out["members"][m] = row
     if len(on) > 1:
-        none = _summary(tip_table(trials, meta, rig, make_estimator, members={m: "off" for m in on},
-                                        form=form))
+        none = without({m: "off" for m in on})
         out["without_all"] = none
         out["contribution_all"] = none["mean"] - base["mean"]
     out["note"] = drift.get("note", "")

@@ -68,10 +68,11 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
                         refit_outputs=refit_outputs)
     v = {k: x for k, x in v.items() if not k.startswith("_")}
     v["thresholds"] = thr
+    tables = cf.pop("_tables", None)
     v["tip"] = cf
     if fitted is not None and hasattr(fitted, "members"):
         # the estimator's own chain members: Table 3 with and without each (the same chain the counterfactual forces)
-        v["chain"] = chain_contributions(trials, meta, rig, make_estimator, fitted)
+        v["chain"] = chain_contributions(trials, meta, rig, make_estimator, fitted, tables=tables)
     v["candidates"] = why_not(v)
     try:
         ex = excitation_check(trials, meta)
