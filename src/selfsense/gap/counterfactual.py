@@ -222,6 +222,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     corr = corrections(verdict, chain=can_force)
     names = [e["effect"] for e in verdict["effects"]][:max_effects]
     tabs: dict = {}
+    ests: dict = {}   # estimators refitted for (input corrections, forced members), with refit_outputs=False
     carried = adopted_members(fitted)
     form = _form_of(fitted)
 
@@ -251,9 +252,19 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
             # estimator costs tens of seconds), which ignores the small change of its coefficients
             plain = not mem and not any(per for n in S for per in corr[n].values())
-            reuse = fitted is not None and (plain or (not refit_outputs and not inputs_touched(S, mem)))
-            tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=fitted if reuse else None,
-                                  members=mem, form=form)
+            est = None
+            if fitted is not None and (plain or (not refit_outputs and not inputs_touched(S, mem))):
+                est = fitted
+            elif fitted is not None and not refit_outputs:
+                # the same rule for a refit: output-only corrections keep the estimator refitted for the input
+                # corrections and members of S, so subsets that differ by output corrections share one refit
+                S_in = frozenset(n for n in S if any(k in ("q", "V") for per in corr[n].values() for k in per))
+                k_in = (S_in, key[1])
+                if k_in not in ests:
+                    tr_in, _ = _apply(trials, [corr[n] for n in sorted(S_in)], meta)
+                    ests[k_in] = _make(make_estimator, rig, mem, form).fit(tr_in, meta)
+                est = ests[k_in]
+            tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=est, members=mem, form=form)
         return tabs[key]
 
     fitted_tab = table(frozenset(), bare=False)
