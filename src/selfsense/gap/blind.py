@@ -353,21 +353,30 @@ def _truth(r: dict, e: str) -> float:
     return float((r.get("true_shrink_from_base") or {}).get(e, r["true_shrink"]))
 
 
-def score_tip(records: list[dict], k: float = 3.0) -> dict:
+def _tip_scored(records: list[dict], k: float = 3.0) -> tuple[float, list[dict]]:
+    """The tip noise floor and, per case, whether it is scored (its effect named top-1 with a real tip consequence,
+    more than ``k`` floors from its base) with its relative shrink error and interval hit."""
     d = [r["error_noise"] - r["error_without"] for r in records]
     floor = float(np.sqrt(np.mean(np.square(d)) / 2.0)) if d else float("nan")
-    rows, errs, inside = [], [], []
+    rows = []
     for r in records:
         e = next(iter(r["manifest"]["effects"]))
         named = r["top"] == e
-        real = abs(_truth(r, e)) > k * floor
+        t = _truth(r, e)
+        real = abs(t) > k * floor
         p = r["predicted_shrink"].get(e)
-        if named and real and p is not None:
-            t = _truth(r, e)
-            errs.append(abs(p - t) / abs(t))
+        row = {"effect": e, "named": named, "tip_real": real, "scored": bool(named and real and p is not None)}
+        if row["scored"]:
             lo, hi = r["interval"][e]
-            inside.append(lo <= t <= hi)
-        rows.append({"effect": e, "named": named, "tip_real": real})
+            row.update({"error": abs(p - t) / abs(t), "inside": lo <= t <= hi})
+        rows.append(row)
+    return floor, rows
+
+
+def score_tip(records: list[dict], k: float = 3.0) -> dict:
+    floor, rows = _tip_scored(records, k)
+    errs = [r["error"] for r in rows if r["scored"]]
+    inside = [r["inside"] for r in rows if r["scored"]]
     return {"n": len(records), "tip_noise_floor": floor, "n_scored": len(errs),
             "median_tip_shrink_error": float(np.median(errs)) if errs else float("nan"),
             "p75_tip_shrink_error": float(np.quantile(errs, 0.75)) if errs else float("nan"),
@@ -375,6 +384,19 @@ def score_tip(records: list[dict], k: float = 3.0) -> dict:
             "n_named": int(sum(r["named"] for r in rows)), "n_tip_real": int(sum(r["tip_real"] for r in rows)),
             "n_costly": int(sum(r["costly"] for r in cost_table(records))),
             "n_costly_named": int(sum(r["named"] for r in cost_table(records)))}
+
+
+def shrink_by_effect(records: list[dict], k: float = 3.0) -> list[dict]:
+    """Per effect family: the cases scored for "how far" (as :func:`score_tip`), their median relative shrink error
+    and how many truths fall inside the 90 % interval."""
+    _, rows = _tip_scored(records, k)
+    out = []
+    for e in sorted({r["effect"] for r in rows}):
+        sc = [r for r in rows if r["effect"] == e and r["scored"]]
+        out.append({"effect": e, "cases": sum(r["effect"] == e for r in rows), "scored": len(sc),
+                    "median_error": float(np.median([r["error"] for r in sc])) if sc else float("nan"),
+                    "inside": sum(r["inside"] for r in sc)})
+    return out
 
 
 #: a case's effect "costs" Table 3 when removing it (the effect-free twin) lowers the mean by at least this [points]
@@ -436,15 +458,28 @@ def write_tip_scores(recs: list[dict], sc: dict, out: Path, command: str) -> Non
     md = ["# Tip tier: how far a named effect shrinks the tip error", "",
           f"Command: `{command}`", "",
           f"{n} single-effect cases (families in turn), the project's default estimator (`SensingConfig()`, as the "
-          "pipeline runs it). Predicted: the named effect corrected with its stage-fitted coefficients fixed (a member "
-          "of the estimator's stage chain: the estimator recalibrated with that member forced on), the "
-          "estimator recalibrated on the corrected calibration trials. True: the same device, drive and noise "
-          "re-simulated without the effect.", "",
+          "pipeline runs it). Predicted: the named effect corrected with its stage-fitted coefficients fixed, the "
+          "estimator recalibrated on the corrected calibration trials; a member of the estimator's stage chain is "
+          "not corrected but switched: forced on where the fitted estimator does not carry it, and where it does, "
+          "its own contribution (Table 3 of the chain recalibrated with it off, minus Table 3). True: the same "
+          "device, drive and noise re-simulated without the effect, scored from the prediction's own base (Table 3, "
+          "or the chain without the carried member)."
+          + ("" if all("true_shrink_from_base" in r for r in recs) else
+             " Records without `true_shrink_from_base` were written when a carried member was predicted 0: they are "
+             "scored against Table 3 minus the twin's."), "",
           f"- tip noise floor: {sc['tip_noise_floor']:.3f} points of range",
           f"- effect named right (top-1): {sc['n_named']} / {n}; tip consequence > 3 floors: {sc['n_tip_real']} / {n}",
           f"- median |predicted - true| / |true| tip shrink over the {sc['n_scored']} cases named right with a real "
           f"tip consequence: **{sc['median_tip_shrink_error']:.3f}** (75th percentile "
           f"{sc['p75_tip_shrink_error']:.3f}); true shrink inside the 90 % interval: {sc['interval_coverage']:.2f}",
           "", f"Cost against named, per effect family (cost = Table 3 of the case minus that of its effect-free twin):",
-          "", cost_table_markdown(cost_table(recs))]
+          "", cost_table_markdown(cost_table(recs)),
+          "How far, per effect family (the cases scored above: named top-1, a real tip consequence from the "
+          "prediction's base):", "",
+          "| effect family | cases | scored | median relative shrink error | truth inside the 90 % interval |",
+          "|---|---|---|---|---|"]
+    for r in shrink_by_effect(recs):
+        md.append(f"| {r['effect']} | {r['cases']} | {r['scored']} | "
+                  + ("-" if not np.isfinite(r["median_error"]) else f"{r['median_error']:.2f}")
+                  + f" | {r['inside']} of {r['scored']} |")
     (out / "tip_scores.md").write_text("\n".join(md) + "\n")
