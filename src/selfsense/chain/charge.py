@@ -38,7 +38,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-__all__ = ["RELAX_TAUS_S", "Z_SUPPORT", "HoldEvidence", "find_holds", "hold_evidence", "leak_column"]
+__all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_TAUS_S", "RELAX_TAUS_S", "Z_SUPPORT", "AbsorptionFit", "HoldEvidence",
+           "absorption_column", "find_holds", "fit_absorption", "hold_evidence", "leak_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -325,3 +326,122 @@ def select_offset_form(r0: np.ndarray, sens: np.ndarray, bases_rest: Mapping[str
     best = min((n for n in cv if n != "ramp"), key=cv.get, default="ramp")
     name = best if cv.get(best, np.inf) < WANDER_GAIN * cv["ramp"] else "ramp"
     return name, cv
+
+
+# ------------------------------------------------------------------------------------------ dielectric absorption
+#: time constants [s] of the absorption branch searched (log-spaced over the range the gap library's member spans)
+ABSORPTION_TAUS_S = tuple(float(x) for x in np.geomspace(0.2, 30.0, 12))
+#: blocked-CV gain of the free-tip laser rows above which the absorption member is supported
+ABSORPTION_MIN_GAIN = 0.3
+#: contiguous blocks per calibration trial of the blocked CV
+ABSORPTION_BLOCKS = 6
+
+
+def absorption_column(V: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """``LP_tau(V)`` [V] from rest (the relay short holds V at 0): the voltage across the capacitor of a series
+    R-C absorption branch with ``tau = R C`` in parallel with the actuators, exact for a piecewise-constant V. The
+    charge that branch draws through the shunt is ``c * absorption_column(V, dt, tau)`` with ``c`` its capacitance
+    [F]; it polarises nothing, so the actuators' charge is ``Q - c LP_tau(V)``."""
+    from scipy.signal import lfilter
+
+    V = np.asarray(V, float)
+    if len(V) == 0:
+        return np.zeros(0)
+    a = float(np.exp(-dt / tau))
+    return lfilter([1.0 - a], [1.0, -a], V)
+
+
+@dataclass
+class AbsorptionFit:
+    """The absorption member of the charge link identified on the free-tip calibration trials' laser."""
+
+    c_f: float = 0.0
+    tau_s: float = float("nan")
+    cv_gain: float = 0.0
+    cv_rms_m_without: float = float("nan")
+    cv_rms_m_with: float = float("nan")
+    supported: bool = False
+    trials: list = field(default_factory=list)
+    grid: list = field(default_factory=list)
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORPTION_TAUS_S,
+                   min_gain: float = ABSORPTION_MIN_GAIN, n_blocks: int = ABSORPTION_BLOCKS) -> AbsorptionFit:
+    """Dielectric absorption from the free-tip calibration trials (laser reference ``dx_ref``, V, Q; relay open).
+
+    On a free tip the displacement follows the actuators' charge (thesis eqs. 24-27 and 52 with f = 0), so a charge
+    parked in an absorption branch shows as a slow lag between the laser and the measured charge: after a step the
+    charge keeps rising while the tip rests. Rows: ``dx = a Q + b Q^2 + s dQ/dt - a c LP_tau(V) + d_k`` (``s``: a
+    sub-sample skew between the channels, ``d_k`` one constant per trial), for every ``tau`` of the grid; ``c`` is the
+    branch capacitance [F]. The member is *supported* when, at the tau with the lowest blocked-CV RMS among those
+    with ``c > 0`` (the branch only takes charge), the RMS is lower than without the column by at least
+    ``min_gain`` and that tau lies inside the grid (an edge optimum is a lag of another form: creep, a skew, a mode).
+    Blocked CV: fold i holds out the i-th of ``n_blocks`` contiguous blocks of every trial. Only calibration
+    references are read."""
+    rows = []
+    for name, df in free_trials.items():
+        if "dx_ref" not in df:
+            continue
+        m = (df["relay"].to_numpy() < 0.5) & np.isfinite(df["dx_ref"].to_numpy(dtype=float))
+        if m.sum() < 10 * n_blocks:
+            continue
+        t = df["t"].to_numpy(dtype=float)
+        dt = float(np.median(np.diff(t)))
+        rows.append((name, m, dt, df["q"].to_numpy(dtype=float), df["V"].to_numpy(dtype=float),
+                     df["dx_ref"].to_numpy(dtype=float)))
+    out = AbsorptionFit(trials=[r[0] for r in rows])
+    if not rows:
+        out.note = "no free-tip calibration trial with a displacement reference: absorption not identified"
+        return out
+
+    def design(tau):
+        Xs, ys, blocks = [], [], []
+        for k, (_, m, dt, Q, V, dx) in enumerate(rows):
+            cols = [Q, Q * Q, np.gradient(Q, dt)]
+            if tau is not None:
+                cols.append(absorption_column(V, dt, tau))
+            one = np.zeros((len(Q), len(rows)))
+            one[:, k] = 1.0
+            Xs.append(np.column_stack(cols + [one])[m])
+            ys.append(dx[m])
+            blocks.append(np.minimum((np.arange(int(m.sum())) * n_blocks) // max(int(m.sum()), 1), n_blocks - 1))
+        return np.vstack(Xs), np.concatenate(ys), np.concatenate(blocks)
+
+    def cv(X, y, b):
+        s = np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-300)   # column scaling for the conditioning only
+        Xs = X / s
+        err = []
+        for i in range(n_blocks):
+            h = b == i
+            beta = np.linalg.lstsq(Xs[~h], y[~h], rcond=None)[0]
+            err.append(Xs[h] @ beta - y[h])
+        e = np.concatenate(err)
+        return float(np.sqrt(np.mean(e * e)))
+
+    X0, y, b = design(None)
+    base = cv(X0, y, b)
+    out.cv_rms_m_without = base
+    best = None
+    for tau in taus:
+        X, _, _ = design(tau)
+        e = cv(X, y, b)
+        beta = np.linalg.lstsq(X, y, rcond=None)[0]
+        c = float(-beta[3] / beta[0]) if beta[0] != 0 else 0.0
+        out.grid.append({"tau_s": float(tau), "cv_gain": 1.0 - e / base, "c_f": c})
+        if c > 0 and (best is None or e < best[0]):
+            best = (e, float(tau), c)
+    if best is None:
+        out.note = "the absorption column fits with a negative capacitance at every time constant: not supported"
+        return out
+    e, tau, c = best
+    out.c_f, out.tau_s, out.cv_rms_m_with, out.cv_gain = c, tau, e, 1.0 - e / base
+    interior = taus[0] < tau < taus[-1]
+    out.supported = bool(interior and out.cv_gain >= min_gain)
+    out.note = (f"absorption branch {c:.3g} F, tau {tau:.3g} s: blocked-CV RMS of the free-tip laser rows "
+                f"{e:.3g} m with, {base:.3g} m without (gain {out.cv_gain:.3f}, threshold {min_gain:g})"
+                + ("" if interior else f"; tau on the edge of the grid {taus[0]:g}-{taus[-1]:g} s"))
+    return out

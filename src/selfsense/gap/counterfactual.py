@@ -16,7 +16,8 @@ A correction acts where the stage says the effect acts:
 * load-stage members: ``f^ <- f^ + c col`` (and the same taken out of the calibration references).
 
 Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset
-drift, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit, :mod:`selfsense.chain.amplifier`) are not corrected with the stage's coefficients: the estimator is recalibrated
+drift and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
+:mod:`selfsense.chain.amplifier`) are not corrected with the stage's coefficients: the estimator is recalibrated
 with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
 member, identified jointly with H(q) and the sensing coefficients. For a member the fitted estimator already carries
 (adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it
@@ -40,7 +41,8 @@ from .stages import MEMBERS
 __all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "counterfactual", "chain_contributions"]
 
 #: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
-CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier"}
+CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier",
+                 "slow.absorption": "absorption"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -152,7 +154,8 @@ def adopted_members(fitted) -> dict:
     return {"leakage": bool(getattr(fitted, "leakage_s_", 0.0)), "offset_drift": bool(getattr(fitted, "offset_drift_",
                                                                                               False)),
             "hold_rows": bool(hold_rows.get("applied", False)),
-            "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False))}
+            "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False)),
+            "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False))}
 
 
 def _form_of(fitted) -> tuple:
@@ -340,6 +343,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
     for m, a in carried.items():
         row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
                                         "current plateau of every trial" if m == "amplifier" else
+                                        "laser of the free-tip calibration trials" if m == "absorption" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             w = without({m: "off"})

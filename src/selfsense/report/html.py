@@ -195,6 +195,11 @@ def _model_section(results_dir: Path) -> list[str]:
         kind += (f"; actuator voltage where the HV amplifier sits at its current limit (shunt current of every trial, "
                  f"docs/method.md 1a): {'rebuilt' if amp.get('applied') else 'read from the command, eq. (56)'}, "
                  f"{html.escape(str(amp['note']))}")
+    ab = d.get("absorption") or {}
+    if ab.get("note"):
+        kind += (f"; dielectric absorption (charge link, free-tip calibration laser, docs/method.md 6c): "
+                 f"{'its charge taken out of Q' if ab.get('applied') else 'not applied'}, "
+                 f"{html.escape(str(ab['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"
@@ -341,9 +346,9 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
                 else:
                     rows.append(f"<tr><td>{html.escape(m.replace('_', ' '))}</td><td>not adopted</td><td>"
                                 "</td><td></td></tr>")
-            parts.append("<p><b>The estimator's own chain members</b> (the charge link: the same leakage and offset "
-                         "models the diagnostic tests; the voltage link: the actuator voltage rebuilt where the HV "
-                         "amplifier sits at its current limit; the H link: the creep of H(q) from the holds of every "
+            parts.append("<p><b>The estimator's own chain members</b> (the charge link: the same leakage, offset "
+                         "and absorption models the diagnostic tests; the voltage link: the actuator voltage rebuilt "
+                         "where the HV amplifier sits at its current limit; the H link: the creep of H(q) from the holds of every "
                          "trial). "
                          "Table 3 is computed with the adopted members; each row gives "
                          "Table 3 of the chain recalibrated without that member (displacement / force) and the "

@@ -88,6 +88,7 @@ class SensingConfig:
     rest_offset: str = "auto"
     hold_rows: str = "auto"
     amplifier: str = "auto"
+    absorption: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -108,6 +109,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.hold_rows: expected 'auto' or 'off', found {self.hold_rows!r}")
         if self.amplifier not in ("auto", "off"):
             raise ValueError(f"SensingConfig.amplifier: expected 'auto' or 'off', found {self.amplifier!r}")
+        if self.absorption not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.absorption: expected 'auto' or 'off', found {self.absorption!r}")
         if int(self.cv_blocks) < 2:
             raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
@@ -444,6 +447,8 @@ class SelfSensingEstimator:
     amplifier_: dict = field(default_factory=dict, init=False)
     #: the H(q) the current-limited voltage is rebuilt with (fitted where V is observed; None: not applied)
     voltage_hysteresis_: Any = field(default=None, init=False, repr=False)
+    #: the charge link's absorption member: the R-C branch found on the free-tip laser and whether it is applied
+    absorption_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -489,6 +494,9 @@ class SelfSensingEstimator:
         # the voltage link (V, Q, u_cmd and V_s of every trial, never a reference): where the amplifier sits at its
         # current limit the actuator voltage is rebuilt before anything reads V
         trials = self._voltage_link(trials, meta)
+        # the charge link's absorption member (calibration free-tip laser): the charge an absorption branch parks is
+        # taken out of every trial's Q before anything reads it (hold evidence, H(q), coefficients)
+        trials = self._absorption_link(trials, meta)
         # reference-free evidence of the charge link from EVERY trial given (V, Q and the relay only: no reference
         # of a validation trial is read), before any calibration-only transform
         from selfsense.chain.charge import hold_evidence
@@ -560,7 +568,7 @@ class SelfSensingEstimator:
         rep["trial"] = free_id
         self._all_trials = None
         self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", [])),
-                            "amplifier": dict(self.amplifier_)}
+                            "amplifier": dict(self.amplifier_), "absorption": dict(self.absorption_)}
         self._fit_ranges(cal_trials, cal)
         return self
 
@@ -713,7 +721,7 @@ class SelfSensingEstimator:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
         the ``members`` forced values, "auto" where not forced."""
         out = {}
-        for k in ("leakage", "offset_drift", "hold_rows", "amplifier"):
+        for k in ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption"):
             m = str(self.members.get(k, "auto"))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
@@ -721,7 +729,7 @@ class SelfSensingEstimator:
         unknown = sorted(set(self.members) - set(out))
         if unknown:
             raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift, "
-                             f"hold_rows, amplifier")
+                             f"hold_rows, amplifier, absorption")
         return out
 
     def _identify_h(self, cal_trials, cal, free, slope):
@@ -1013,6 +1021,47 @@ class SelfSensingEstimator:
         self.amplifier_["h_rows"] = int(model.fit_report_.get("n_samples", 0))
         return model
 
+    def _absorption_link(self, trials, meta):
+        """The absorption member of the charge link (:func:`selfsense.chain.charge.fit_absorption`): a series R-C
+        branch in parallel with the actuators (dielectric absorption) takes charge through the shunt that polarises
+        nothing. Identified on the free-tip calibration trials' laser (the only references it reads); where it is
+        supported (``members['absorption']`` "auto", config ``absorption: auto``) or forced ("on", with the best
+        positive branch of the grid), every trial's charge becomes ``Q - c LP_tau(V)``. Returns the trials to fit on."""
+        from selfsense.chain.charge import fit_absorption
+
+        mode = self._member_modes()["absorption"]
+        if mode == "auto" and self.config.absorption == "off":
+            mode = "off"
+        self.absorption_ = {"mode": mode, "applied": False}
+        if mode == "off":
+            self.absorption_["note"] = "absorption member off (config absorption: off or member forced off)"
+            return trials
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        free = [t for t, r in meta.iterrows() if r["role"] == "calibration" and r["tip"] == "free"
+                and r["reference"] == "displacement" and t in trials]
+        fit = fit_absorption({t: trials[t] for t in free})
+        self.absorption_.update(fit.to_dict())
+        if not (fit.supported or (mode == "on" and fit.c_f > 0)):
+            self.absorption_["note"] = fit.note + ": not applied"
+            return trials
+        self.absorption_.update({"applied": True, "source": "forced" if mode == "on" else "free-tip laser",
+                                 "note": fit.note + ": applied"})
+        return {t: self._with_absorption(df) for t, df in trials.items()}
+
+    def _with_absorption(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial with the charge of the absorption branch taken out of ``q`` (unchanged when not applied)."""
+        if not self.absorption_.get("applied"):
+            return df
+        from selfsense.chain.charge import absorption_column
+
+        a = self.absorption_
+        col = absorption_column(df["V"].to_numpy(dtype=float), _trial_dt(df), float(a["tau_s"]))
+        return _with_column(df, "q", df["q"].to_numpy(dtype=float) - float(a["c_f"]) * col)
+
+    def _with_links(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial through the fitted voltage link (amplifier rebuild) and the charge link's absorption member."""
+        return self._with_absorption(self._with_voltage(df))
+
     def _with_voltage(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with its current-limited actuator voltage rebuilt (unchanged when the member is not applied)."""
         if not self.amplifier_.get("applied") or "V_s" not in df or "u_cmd" not in df:
@@ -1046,7 +1095,7 @@ class SelfSensingEstimator:
         if self.hysteresis_ is None:
             raise RuntimeError("fit_coefficients: calibrate H(q) first (fit_hysteresis)")
         cal, cal_trials = self._calibration_set(trials, meta)
-        cal_trials = {t: self._with_voltage(df) for t, df in cal_trials.items()}
+        cal_trials = {t: self._with_links(df) for t, df in cal_trials.items()}
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
         cfg = self.config
@@ -1159,7 +1208,8 @@ class SelfSensingEstimator:
         """
         if self.hysteresis_ is None:
             raise RuntimeError("SelfSensingEstimator.estimate called before fit()")
-        df = self._with_voltage(df)
+        q_measured = df["q"].to_numpy(dtype=float)
+        df = self._with_links(df)
         X = self._regressors(df)
         dx_raw, f_raw = self._predict_raw(X)
         relay = df["relay"].to_numpy() >= 0.5
@@ -1181,7 +1231,7 @@ class SelfSensingEstimator:
         return pd.DataFrame({
             "t": df["t"].to_numpy(dtype=float),
             "dx_hat": dx, "f_hat": f, "dx_raw": dx_raw, "f_raw": f_raw,
-            "V_p": X[:, 1], "V_H": V_H, "q": df["q"].to_numpy(dtype=float),
+            "V_p": X[:, 1], "V_H": V_H, "q": q_measured,
         })
 
     # ------------------------------------------------------------------ serialisation
@@ -1200,6 +1250,7 @@ class SelfSensingEstimator:
             "members": dict(self.members),
             "drift_hysteresis": (_h_to_dict(self.drift_hysteresis_) if self.drift_hysteresis_ is not None else None),
             "amplifier": dict(self.amplifier_),
+            "absorption": dict(self.absorption_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -1223,5 +1274,6 @@ class SelfSensingEstimator:
         est.leakage_s_ = float(d.get("leakage_s", 0.0))
         est.offset_drift_ = bool(d.get("offset_drift", False))
         est.amplifier_ = dict(d.get("amplifier") or {})
+        est.absorption_ = dict(d.get("absorption") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

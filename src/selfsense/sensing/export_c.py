@@ -462,6 +462,10 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         raise ExportError("the model carries the amplifier member (the actuator voltage rebuilt where the HV amplifier "
                           "sits at its current limit, up to the sample where the limit lets go), which a controller has "
                           "not seen yet; refit with calibration: amplifier: off to export it")
+    if (getattr(est, "absorption_", None) or {}).get("applied"):
+        raise ExportError("the model carries the absorption member of the charge link (the charge of a "
+                          "dielectric-absorption branch, c LP_tau(V), taken out of Q), which the C export does not "
+                          "carry yet; refit with calibration: absorption: off to export it")
     if getattr(est, "offset_drift_", False):
         raise ExportError("the model carries the offset-drift member (offset_drift: true), fitted over the rest "
                           "segments of whole trials, which a controller has not seen yet; refit with calibration: "

@@ -476,6 +476,11 @@ class SelfSensingStream:
                 "SelfSensingStream: the model carries the amplifier member (the actuator voltage rebuilt where the HV "
                 "amplifier sits at its current limit, interpolated up to the sample where the limit lets go), which "
                 "needs samples a stream has not seen yet; refit with calibration: amplifier: off to stream it")
+        if (getattr(estimator, "absorption_", None) or {}).get("applied"):
+            raise NotImplementedError(
+                "SelfSensingStream: the model carries the absorption member of the charge link (the charge of a "
+                "dielectric-absorption branch, c LP_tau(V), taken out of Q), which the stream does not carry yet; "
+                "refit with calibration: absorption: off to stream it")
         if getattr(estimator, "offset_drift_", False) and drift != "causal":
             raise NotImplementedError(
                 "SelfSensingStream: the model carries the offset-drift member (offset_drift: true), a charge drift "
