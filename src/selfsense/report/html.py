@@ -348,8 +348,8 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
                                 "</td><td></td></tr>")
             parts.append("<p><b>The estimator's own chain members</b> (the charge link: the same leakage, offset "
                          "and absorption models the diagnostic tests; the voltage link: the actuator voltage rebuilt "
-                         "where the HV amplifier sits at its current limit; the H link: the creep of H(q) from the holds of every "
-                         "trial). "
+                         "where the HV amplifier sits at its current limit; the H link: the creep of H(q) from the "
+                         "holds of every trial). "
                          "Table 3 is computed with the adopted members; each row gives "
                          "Table 3 of the chain recalibrated without that member (displacement / force) and the "
                          "change of their mean in points (positive = the member lowers the error). Why a member was "
