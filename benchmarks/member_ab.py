@@ -53,6 +53,8 @@ def _one(args):
         out[f"calibration_{mode}"] = float(np.mean(cal))
     est0 = SelfSensingEstimator(config=SensingConfig(), rig=rig0).fit(tr0, me0)
     out["table3_twin"] = _summary(tip_table(tr0, me0, rig0, None, estimator=est0))["mean"]
+    dec0 = getattr(est0, f"{member}_", None)
+    out["adopted_twin"] = bool(dec0.get("applied")) if isinstance(dec0, dict) else None  # a false adoption
     return out
 
 
@@ -88,7 +90,9 @@ def main(argv=None) -> int:
             f"range) lower than with the member off in {better} of {len(ad)}, median "
             f"{statistics.median(r['table3_off'] for r in ad) if ad else float('nan'):.2f} -> "
             f"{statistics.median(r['table3_auto'] for r in ad) if ad else float('nan'):.2f} (effect-free twins: median "
-            f"{statistics.median(r['table3_twin'] for r in ad) if ad else float('nan'):.2f}).\n")
+            f"{statistics.median(r['table3_twin'] for r in ad) if ad else float('nan'):.2f})."
+            + (f" Adopted on the effect-free twins (a false adoption): {sum(bool(r['adopted_twin']) for r in recs)} of "
+               f"{len(recs)}." if all("adopted_twin" in r for r in recs) else "") + "\n")
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

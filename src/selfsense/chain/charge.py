@@ -1,13 +1,15 @@
 """The charge link of the stage chain: V_s -> Q (thesis ``000_18d138f03f1777c3.txt`` eq. 57) and its members.
 
 The shunt integrates every current that flows into the actuator node, not only the one that polarises the
-actuators. Two members of this link are carried by the estimator (:class:`selfsense.sensing.SelfSensingEstimator`)
+actuators. Three members of this link are carried by the estimator (:class:`selfsense.sensing.SelfSensingEstimator`)
 and tested by the gap diagnostic (:mod:`selfsense.gap.stages`) through the *same* functions of this module:
 
 * **leakage**: a parallel conductance g [S] (the insulation of the actuator set): the shunt also carries ``g V``, so
   the actuators' charge is ``Q - g int V dt`` (:func:`leak_column`);
 * **offset drift**: an in-amp input offset that drifts after the relay opened integrates into the charge as
   ``a t + b t^2`` (the estimator estimates each trial's own from its rests).
+* **absorption**: a series R-C branch in parallel with the actuators (dielectric absorption) parks the charge
+  ``c LP_tau(V)`` (:func:`absorption_column`), identified on the free-tip calibration laser (:func:`fit_absorption`).
 
 Reference-free evidence (:func:`hold_evidence`). During a hold of the drive (V constant within its noise) the
 actuators' charge is constant whatever the tip does (free, blocked or in contact: the force is constant too),
