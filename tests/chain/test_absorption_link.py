@@ -112,3 +112,13 @@ def test_one_chain_diagnostic_names_the_member_stream_and_export_refuse_it(absor
     assert np.array_equal(back.estimate(df)["f_hat"].to_numpy(), est.estimate(df)["f_hat"].to_numpy())
     with pytest.raises(ValueError, match="SensingConfig.absorption"):
         SensingConfig(absorption="on")
+
+
+def test_a_leakage_path_is_not_taken_for_an_absorption_branch():
+    """The same device with leakage instead of the branch: a long-tau absorption column fits the slow charge path too,
+    but no better than the leakage column int V dt, so the member is not adopted (the leakage member carries it)."""
+    tr, me, _ = simulate_family_case(CASE["family"], CASE["device_seed"], {"slow.leakage": 10.0}, CASE["noise_seed"],
+                                     T_CASE, FS_CASE)
+    fit = fit_absorption(_free(tr, me))
+    assert not fit.supported
+    assert fit.cv_rms_m_with > 0.95 * fit.cv_rms_m_leak, fit.note

@@ -40,8 +40,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-__all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_TAUS_S", "RELAX_TAUS_S", "Z_SUPPORT", "AbsorptionFit", "HoldEvidence",
-           "absorption_column", "find_holds", "fit_absorption", "hold_evidence", "leak_column"]
+__all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "RELAX_TAUS_S", "Z_SUPPORT",
+           "AbsorptionFit", "HoldEvidence", "absorption_column", "find_holds", "fit_absorption", "hold_evidence",
+           "leak_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -337,6 +338,9 @@ ABSORPTION_TAUS_S = tuple(float(x) for x in np.geomspace(0.2, 30.0, 12))
 ABSORPTION_MIN_GAIN = 0.3
 #: contiguous blocks per calibration trial of the blocked CV
 ABSORPTION_BLOCKS = 6
+#: the absorption column must beat the leakage column int V dt on the same rows by this ratio of blocked-CV RMS: a slow
+#: charge path of another form (leakage, a remanent state relaxing) is fitted almost as well by LP_tau(V) at a long tau
+ABSORPTION_OVER_LEAK = 0.9
 
 
 def absorption_column(V: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -362,6 +366,8 @@ class AbsorptionFit:
     cv_gain: float = 0.0
     cv_rms_m_without: float = float("nan")
     cv_rms_m_with: float = float("nan")
+    #: the same rows with the leakage column int V dt instead (a slow charge path the absorption column can mimic)
+    cv_rms_m_leak: float = float("nan")
     supported: bool = False
     trials: list = field(default_factory=list)
     grid: list = field(default_factory=list)
@@ -381,7 +387,11 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
     sub-sample skew between the channels, ``d_k`` one constant per trial), for every ``tau`` of the grid; ``c`` is the
     branch capacitance [F]. The member is *supported* when, at the tau with the lowest blocked-CV RMS among those
     with ``c > 0`` (the branch only takes charge), the RMS is lower than without the column by at least
-    ``min_gain`` and that tau lies inside the grid (an edge optimum is a lag of another form: creep, a skew, a mode).
+    ``min_gain``, that tau lies inside the grid (an edge optimum is a lag of another form: creep, a skew, a mode),
+    and the RMS is at most :data:`ABSORPTION_OVER_LEAK` times that of the same rows with the leakage column
+    ``int V dt`` instead (a slow charge path of another form is fitted almost as well by a long-tau column: on the 60
+    devices of ``benchmarks/absorption_null.py`` the best interior gain reached 0.84 while the ratio stayed >= 0.997;
+    with a branch it is 0.17-0.26).
     Blocked CV: fold i holds out the i-th of ``n_blocks`` contiguous blocks of every trial. Only calibration
     references are read."""
     rows = []
@@ -404,7 +414,9 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
         Xs, ys, blocks = [], [], []
         for k, (_, m, dt, Q, V, dx) in enumerate(rows):
             cols = [Q, Q * Q, np.gradient(Q, dt)]
-            if tau is not None:
+            if tau == "leak":
+                cols.append(leak_column(V, dt))
+            elif tau is not None:
                 cols.append(absorption_column(V, dt, tau))
             one = np.zeros((len(Q), len(rows)))
             one[:, k] = 1.0
@@ -427,6 +439,8 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
     X0, y, b = design(None)
     base = cv(X0, y, b)
     out.cv_rms_m_without = base
+    XL, _, _ = design("leak")
+    out.cv_rms_m_leak = cv(XL, y, b)
     best = None
     for tau in taus:
         X, _, _ = design(tau)
@@ -442,8 +456,11 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
     e, tau, c = best
     out.c_f, out.tau_s, out.cv_rms_m_with, out.cv_gain = c, tau, e, 1.0 - e / base
     interior = taus[0] < tau < taus[-1]
-    out.supported = bool(interior and out.cv_gain >= min_gain)
+    beats_leak = e <= ABSORPTION_OVER_LEAK * out.cv_rms_m_leak
+    out.supported = bool(interior and out.cv_gain >= min_gain and beats_leak)
     out.note = (f"absorption branch {c:.3g} F, tau {tau:.3g} s: blocked-CV RMS of the free-tip laser rows "
-                f"{e:.3g} m with, {base:.3g} m without (gain {out.cv_gain:.3f}, threshold {min_gain:g})"
-                + ("" if interior else f"; tau on the edge of the grid {taus[0]:g}-{taus[-1]:g} s"))
+                f"{e:.3g} m with, {base:.3g} m without (gain {out.cv_gain:.3f}, threshold {min_gain:g}), "
+                f"{out.cv_rms_m_leak:.3g} m with a leakage column instead"
+                + ("" if interior else f"; tau on the edge of the grid {taus[0]:g}-{taus[-1]:g} s")
+                + ("" if beats_leak else f"; not {1 - ABSORPTION_OVER_LEAK:.0%} better than the leakage form"))
     return out
