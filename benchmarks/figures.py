@@ -44,6 +44,8 @@ DATES = {
     "tip_amplifier": "2026-11-26",
     "tip_stress": "2026-11-26",
     "amplifier_blind": "2026-11-26",
+    "absorption_blind": "2026-11-26",
+    "absorption_null": "2026-11-26",
     "external": "2026-11-24",
 }
 COMMANDS = {
@@ -74,6 +76,10 @@ COMMANDS = {
                      "--out benchmarks/gap_tip/amplifier_member.md",
     "amplifier_blind": "python benchmarks/member_ab.py --member amplifier --effect rate.amplifier --seed 20261126 "
                        "--n 8 --jobs 2 --out benchmarks/gap_tip/amplifier_blind.md",
+    "absorption_blind": "python benchmarks/member_ab.py --member absorption --effect slow.absorption --seed 31415 "
+                        "--n 8 --jobs 2 --out benchmarks/gap_tip/absorption_blind.md",
+    "absorption_null": "python benchmarks/absorption_null.py --families preisach,gpi,bouc_wen,jiles_atherton,rate_kp "
+                       "--seeds 0-5 --out benchmarks/gap_tip/absorption_null.md",
     "tip_stress": "python benchmarks/tip_cases.py --seed 4711 --cases 1,18,24,25,37,56,71,74 --jobs 1 "
                   "--out benchmarks/gap_tip/stress_simfix.md",
     "external": "selfsense fit-external --data-dir DIR --out benchmarks/external/fit_external.md",
@@ -411,6 +417,28 @@ def gap_figures() -> list[Fig]:
                            f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                            f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", bsrc,
                            COMMANDS["amplifier_blind"], DATES["amplifier_blind"]))
+    absrc = "benchmarks/gap_tip/absorption_blind.jsonl.gz"
+    if (ROOT / absrc).exists():
+        ab = [json.loads(x) for x in gzip.open(ROOT / absrc, "rt")]
+        ad = [r for r in ab if r["adopted"]]
+        if ad:
+            better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
+            out.append(Fig(f"absorption member of the charge link at first contact: the first {len(ab)} "
+                           "slow.absorption tip cases of a seed not used in its development; adopted; where adopted, "
+                           "Table 3 lower than with the member off; median Table 3 member off -> auto (effect-free "
+                           "twins)", f"{len(ad)} of {len(ab)}; {better} of {len(ad)}; "
+                           f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
+                           f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
+                           f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", absrc,
+                           COMMANDS["absorption_blind"], DATES["absorption_blind"]))
+    nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
+    if (ROOT / nsrc_).exists():
+        nl = [json.loads(x) for x in gzip.open(ROOT / nsrc_, "rt")]
+        fams = sorted({r["family"] for r in nl})
+        out.append(Fig(f"absorption member on devices without an absorption branch ({len(nl)} devices, "
+                       f"{len(fams)} families, clean and drift presets, thesis protocol): adopted (false adoptions)",
+                       f"{sum(r['supported'] for r in nl)} of {len(nl)}", "", "measured", nsrc_,
+                       COMMANDS["absorption_null"], DATES["absorption_null"]))
     ssim = "benchmarks/gap_tip/stress_simfix.jsonl.gz"
     if (ROOT / ssim).exists():
         st = [json.loads(x) for x in gzip.open(ROOT / ssim, "rt")]
