@@ -51,21 +51,24 @@ def main(argv=None) -> int:
     else:
         with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
             recs = list(ex.map(_one, [(i, a.seed) for i in cases]))
-    rows = ["| case | family | effect | named top-1 | Table 3 mean, case [points] | effect-free twin | true shrink | "
-            "predicted shrink (90 % interval) | relative error | campaign record: predicted / true |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
+    from selfsense.gap.blind import _truth
+
+    rows = ["| case | family | effect | named top-1 | Table 3 mean, case [points] | effect-free twin | cost (case - "
+            "twin) | true shrink from the prediction's base | predicted shrink (90 % interval) | relative error | "
+            "campaign record: predicted / true |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     errs = []
     for r in recs:
         e = next(iter(r["manifest"]["effects"]))
         p = r["predicted_shrink"].get(e)
         lo, hi = r["interval"].get(e, [float("nan")] * 2)
-        rel = abs(p - r["true_shrink"]) / abs(r["true_shrink"]) if p is not None and r["true_shrink"] else float("nan")
+        t = _truth(r, e)
+        rel = abs(p - t) / abs(t) if p is not None and t else float("nan")
         if p is not None and r["top"] == e:
             errs.append(rel)
         o = old.get(r["case"], {})
         op = (o.get("predicted_shrink") or {}).get(e)
         rows.append(f"| {r['case']} | {r['family']} | {e} | {r['top'] == e} | {r['before']:.2f} | "
-                    f"{r['error_without']:.2f} | {r['true_shrink']:.2f} | "
+                    f"{r['error_without']:.2f} | {r['true_shrink']:.2f} | {t:.2f} | "
                     + ("-" if p is None else f"{p:.2f} ({lo:.2f} to {hi:.2f})") + " | "
                     + ("-" if p is None else f"{rel:.2f}") + " | "
                     + (f"{op:.2f} / {o['true_shrink']:.2f}" if op is not None else "-") + " |")
@@ -82,8 +85,9 @@ def main(argv=None) -> int:
             f"({datetime.now(timezone.utc).strftime('%Y-%m-%d')})\n\n" + "\n".join(rows)
             + f"\n\nMedian relative error of the predicted shrink over the {len(errs)} cases named right: {med:.2f}. "
             "Where the default estimator already carries the member that models the named effect (adopted for "
-            "Table 3), the prediction is 0 (nothing further to shrink) and the true shrink is the part of the "
-            "effect's cost the member does not recover.\n\n"
+            "Table 3), the prediction is the member's own contribution (Table 3 of the chain recalibrated without "
+            "it, minus Table 3) and the truth is measured from the same base (the chain without it minus the twin); "
+            "records written before 2026-11-26 predicted 0 there and are scored against the cost.\n\n"
             f"Cost of the effect (Table 3 mean of the case minus its effect-free twin, points): median "
             f"{median(cost_now):.2f}, mean {sum(cost_now) / max(len(cost_now), 1):.2f} over these {len(recs)} cases"
             + (f"; the campaign's own records of the same cases (made with the estimator of their date): median "
