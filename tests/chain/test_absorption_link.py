@@ -89,12 +89,13 @@ def test_member_lowers_table3_and_leaves_the_twin_bit_identical(absorbing, twin)
         assert np.array_equal(pa["f_hat"].to_numpy(), pb["f_hat"].to_numpy())
 
 
-def test_one_chain_diagnostic_names_the_member_stream_and_export_refuse_it(absorbing):
+def test_one_chain_diagnostic_names_the_member_and_the_stream_carries_it(absorbing):
     """The diagnostic's ``slow.absorption`` is the estimator's member (its counterfactual switches it, its chain
-    table scores the chain without it); the config switch turns it off; a stream or a C export of a model that
-    carries it is refused with the reason; the model JSON keeps it."""
+    table scores the chain without it); the config switch turns it off; the stream carries it (the same recursion,
+    sample by sample: equal to the batch estimate; the C export is checked in tests/sensing/test_export_c.py); the
+    model JSON keeps it."""
     from selfsense.gap.counterfactual import CHAIN_MEMBERS, adopted_members
-    from selfsense.sensing.export_c import ExportError, c_sources
+    from selfsense.sensing.export_c import c_sources
     from selfsense.sensing.streaming import SelfSensingStream
 
     tr, me, rig, _ = absorbing
@@ -103,10 +104,17 @@ def test_one_chain_diagnostic_names_the_member_stream_and_export_refuse_it(absor
     assert adopted_members(est)["absorption"]
     off = SelfSensingEstimator(config=SensingConfig(absorption="off"), rig=rig).fit(tr, me)
     assert not adopted_members(off)["absorption"] and "config absorption: off" in off.absorption_["note"]
-    with pytest.raises(NotImplementedError, match="absorption member"):
-        SelfSensingStream(est, dt=1.0 / FS_CASE)
-    with pytest.raises(ExportError, match="absorption member"):
-        c_sources(est, rig, 1.0 / FS_CASE)
+    assert "DA_C" in c_sources(est, rig, 1.0 / FS_CASE)[1]
+    assert not est.offset_drift_ and not est.amplifier_.get("applied")   # members a plain stream refuses
+    for t in ("val_force", "val_disp"):
+        df = tr[t]
+        stream = SelfSensingStream(est, dt=1.0 / FS_CASE)
+        v_shunt = df["V_s"].to_numpy() * float(rig.inamp_gain)   # the in-amp output the DAQ logged
+        out = stream.process(df["u_cmd"].to_numpy(), v_shunt, df["relay"].to_numpy(), full=True)
+        batch = est.estimate(df)
+        for col in ("dx_hat", "f_hat"):
+            rng = float(np.ptp(batch[col])) or 1.0
+            assert np.max(np.abs(out[col] - batch[col].to_numpy())) < 1e-9 * rng, (t, col)
     back = SelfSensingEstimator.from_dict(est.to_dict(), rig)
     df = tr["val_force"] if "val_force" in tr else next(iter(tr.values()))
     assert np.array_equal(back.estimate(df)["f_hat"].to_numpy(), est.estimate(df)["f_hat"].to_numpy())

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from selfsense.sensing import SelfSensingEstimator
-from selfsense.sensing.estimator import GaugedH
+from selfsense.sensing.estimator import GaugedH, _rig_params
 from selfsense.sensing.export_c import ExportError, export_c
 from selfsense.sensing.streaming import SelfSensingStream
 
@@ -80,8 +80,10 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
-        # every member the C code carries: leakage, rest offset, sliding offset (dx and f), limiting
+        # every member the C code carries: absorption, leakage, rest offset, sliding offset (dx and f), limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
+        pr = _rig_params(rig)
+        est.absorption_ = {"applied": True, "c_f": 0.02 * pr["n_A"] * pr["C_p"], "tau_s": 1.5}
         est.config.dc_offset = est.config.dc_offset_force = True
         out[name] = est
     h = out["modified_pi (thesis)"].hysteresis_   # a model file written before ModifiedPIH holds a GaugedH

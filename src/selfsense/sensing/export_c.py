@@ -5,7 +5,7 @@ SelfSensingStream` for one model at one sample time, with every parameter as a `
 with 17 significant digits:
 
 1. front: SI conversion, in-amp offset from the first relay segment, trapezoidal charge reset by the relay
-   (``000_18d138f03f1777c3.txt`` eqs. 56-57) and the leakage member;
+   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the absorption and the leakage members;
 2. H(Q) of any model the estimator holds: the registry's ``linear``, ``pi``, ``preisach`` (the incremental grid of
    ``hysteresis.models._grid``), ``ri`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11, 15-16), ``duhem``, ``modified_pi``
    (Kuhnen's operator, thesis eqs. 29-42, in the sign / linear gauge) and the thesis identification's ``GaugedH``,
@@ -126,7 +126,7 @@ _HEADER = """/* {name}.h: self-sensing estimator exported by selfsense {version}
 #define SS_DT {dt}
 {sizes}
 typedef struct {{
-    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off;
+    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off, da_y;
     int off_mode;           /* 0 waiting for the relay, 1 averaging it, 2 offset known */
     double dx_dc, f_dc;     /* sliding DC offsets */
 {fields}}} ss_state;
@@ -142,6 +142,7 @@ void ss_init(ss_state *s)
 {
     int i;
     s->t_n = 0.0; s->vs_last = 0.0; s->csum = 0.0; s->base = 0.0; s->v_last = 0.0; s->icsum = 0.0; s->ibase = 0.0;
+    s->da_y = 0.0;
     s->off_sum = 0.0; s->off_n = 0.0; s->off = OFF0; s->off_mode = OFF_MODE0;
     s->dx_dc = 0.0; s->f_dc = 0.0;
     (void)i;
@@ -173,6 +174,10 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     s->csum += inc; s->icsum += iinc;
     if (shorted) { s->base = s->csum; s->ibase = s->icsum; q = 0.0; }
     else q = s->csum - s->base;
+    if (DA_C != 0.0) {  /* absorption member: Q - c LP_tau(V) */
+        s->da_y = (1.0 - DA_A) * V + DA_A * s->da_y;
+        q = q - DA_C * s->da_y;
+    }
     if (G_LEAK != 0.0) q = q - G_LEAK * (shorted ? 0.0 : s->icsum - s->ibase);
     s->vs_last = Vs; s->v_last = V; s->t_n += 1.0;
     st = h_step(s, q, &VH);
@@ -462,10 +467,6 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         raise ExportError("the model carries the amplifier member (the actuator voltage rebuilt where the HV amplifier "
                           "sits at its current limit, up to the sample where the limit lets go), which a controller has "
                           "not seen yet; refit with calibration: amplifier: off to export it")
-    if (getattr(est, "absorption_", None) or {}).get("applied"):
-        raise ExportError("the model carries the absorption member of the charge link (the charge of a "
-                          "dielectric-absorption branch, c LP_tau(V), taken out of Q), which the C export does not "
-                          "carry yet; refit with calibration: absorption: off to export it")
     if getattr(est, "offset_drift_", False):
         raise ExportError("the model carries the offset-drift member (offset_drift: true), fitted over the rest "
                           "segments of whole trials, which a controller has not seen yet; refit with calibration: "
@@ -475,10 +476,13 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         raise ExportError(f"name {name!r} is not a C identifier")
     cfg, c = est.config, est.coef_
+    ab = getattr(est, "absorption_", None) or {}
     h = _h_spec(est.hysteresis_, float(dt))
     consts = {
         "R_SHUNT": _rig_get(rig, "shunt_resistance_ohm"), "INAMP": _rig_get(rig, "inamp_gain"),
         "GAIN": _rig_get(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
+        "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
+        "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
         "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],

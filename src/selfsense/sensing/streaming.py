@@ -14,7 +14,9 @@ each carry their state (O(1) memory per sample):
    segment, known when that segment ends, before it is first needed (charge is 0 on shorted samples) -- provided
    the log starts with its relay segment (otherwise pass ``offset=<volts>``). The **leakage member** (a fitted
    conductance ``g``, ``leakage_s`` in the model JSON) subtracts ``g int V dt``, the same running trapezoid on V
-   restarted at the relay (``SelfSensingEstimator._charge``, ``integral_v``).
+   restarted at the relay (``SelfSensingEstimator._charge``, ``integral_v``). The **absorption member** (``c_f``,
+   ``tau_s`` in the model JSON's ``absorption``) subtracts ``c LP_tau(V)`` before it, the recursion of
+   ``chain.charge.absorption_column`` at the stream's sample period.
 2. **H(Q)** for every model the estimator can hold: the registry kinds ``linear``, ``pi``, ``preisach``, ``ri``,
    ``duhem``, ``modified_pi`` (their ``predict(q, dt, state)`` carries the operators' memory: play and creep states,
    the Preisach grid's stack of dominant extrema, the RI model's extrema memory, the Duhem map's state) and the
@@ -49,11 +51,12 @@ from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, 
 __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "stream_kinds"]
 
 # ---- front state (float64) ------------------------------------------------------------------------------------
-(_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE) = range(12)
-_NS_FRONT = 12
+(_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE,
+ _DA_Y) = range(13)
+_NS_FRONT = 13
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- front parameters
-_F_R, _F_INAMP, _F_GAIN, _F_G = range(4)
+_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA = range(6)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 (_B_A1, _B_A2, _B_B21, _B_B22, _B_DX0, _B_ZL, _B_DXLO, _B_DXHI, _B_FLO, _B_FHI, _B_DCDX, _B_DCF,
@@ -98,11 +101,12 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
 
 @njit(cache=True)
 def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
-    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57) and the leakage member. Returns (status,
-    index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak]; ``S`` the front state
-    (updated in place); ``t`` ignored unless ``use_t``. Writes the charge the model uses (``q_out``, after the
-    leakage member), the measured charge (``qm_out``), V and the sample's time (``t_out``: the time stamp, or
-    the sample period accumulated from 0 without time stamps)."""
+    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57), the absorption and the leakage members.
+    Returns (status, index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak, c_da, a_da]
+    (``a_da = exp(-dt / tau)`` of the absorption branch); ``S`` the front state (updated in place); ``t`` ignored
+    unless ``use_t``. Writes the charge the model uses (``q_out``, after the members), the measured charge
+    (``qm_out``), V and the sample's time (``t_out``: the time stamp, or the sample period accumulated from 0 without
+    time stamps)."""
     for k in range(u.shape[0]):
         rk = relay[k]
         if rk != 0.0 and rk != 1.0:
@@ -131,6 +135,13 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         if st != _OK:
             return st, k
         qm_out[k] = q
+        cda = P[_F_CDA]
+        if cda != 0.0:
+            # absorption member: Q - c LP_tau(V), the recursion of chain.charge.absorption_column (from rest)
+            a = P[_F_ADA]
+            y = (1.0 - a) * V + a * S[_DA_Y]
+            S[_DA_Y] = y
+            q = q - cda * y
         g = P[_F_G]
         if g != 0.0:
             # leakage member: Q - g int V dt, the same trapezoid on V (R = 1, no offset: integral_v)
@@ -476,11 +487,6 @@ class SelfSensingStream:
                 "SelfSensingStream: the model carries the amplifier member (the actuator voltage rebuilt where the HV "
                 "amplifier sits at its current limit, interpolated up to the sample where the limit lets go), which "
                 "needs samples a stream has not seen yet; refit with calibration: amplifier: off to stream it")
-        if (getattr(estimator, "absorption_", None) or {}).get("applied"):
-            raise NotImplementedError(
-                "SelfSensingStream: the model carries the absorption member of the charge link (the charge of a "
-                "dielectric-absorption branch, c LP_tau(V), taken out of Q), which the stream does not carry yet; "
-                "refit with calibration: absorption: off to stream it")
         if getattr(estimator, "offset_drift_", False) and drift != "causal":
             raise NotImplementedError(
                 "SelfSensingStream: the model carries the offset-drift member (offset_drift: true), a charge drift "
@@ -507,14 +513,22 @@ class SelfSensingStream:
         if R <= 0 or inamp <= 0:
             raise ValueError("rig: shunt_resistance_ohm and inamp_gain must be > 0")
         g = float(getattr(estimator, "leakage_s_", 0.0) or 0.0)
-        self._PF = np.array([R, inamp, gain, g])
+        self.h = HStream(estimator.hysteresis_, self.dt)
+        c_da, a_da = 0.0, 0.0
+        ab = getattr(estimator, "absorption_", None) or {}
+        if ab.get("applied"):
+            # the branch's recursion at the stream's sample period (the batch: the trial's median period)
+            dt_ab = self.dt if self.dt is not None else float(self.h.dt)
+            if not (np.isfinite(dt_ab) and dt_ab > 0):
+                raise ValueError("SelfSensingStream: the absorption member needs the sample period; pass dt")
+            c_da, a_da = float(ab["c_f"]), float(np.exp(-dt_ab / float(ab["tau_s"])))
+        self._PF = np.array([R, inamp, gain, g, c_da, a_da])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
             cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
             estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit))], dtype=float)
-        self.h = HStream(estimator.hysteresis_, self.dt)
         self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
         self._buf = {k: np.zeros(1) for k in ("u", "v", "r", "t", "q", "V", "qm", "ts", "dx", "f")}
         self._buf["aux"] = np.empty((0, 4))
@@ -625,7 +639,7 @@ class SelfSensingStream:
 
     def process(self, u_cmd, v_shunt, relay=None, t=None, *, full: bool = False):
         """A block of raw samples (1-D arrays of equal length; relay default 0). Returns (dx_hat, f_hat) arrays,
-        or with ``full=True`` a dict with dx_hat, f_hat, q (measured charge), q_model (after the leakage member),
+        or with ``full=True`` a dict with dx_hat, f_hat, q (measured charge), q_model (after the charge members),
         V, V_H, V_p, dx_raw, f_raw. A block with a bad sample
         raises :class:`StreamError` and leaves the state as it was before the block."""
         u = np.ascontiguousarray(u_cmd, dtype=np.float64).ravel()
