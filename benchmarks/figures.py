@@ -39,6 +39,7 @@ DATES = {
     "gap_stages": "2026-11-24",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
+    "gap_tip_27182": "2026-11-26",
     "stage_chain": "2026-11-26",
     "stage_chain_duhem_linear": "2026-11-26",
     "tip_amplifier": "2026-11-26",
@@ -69,6 +70,8 @@ COMMANDS = {
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     # the tip tier after the simulator's stress fix, with a carried chain member scored by its own contribution
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
+    # the same tier on another new seed with the absorption member of the charge link
+    "gap_tip_27182": "selfsense gap blind --tip --n 120 --seed 27182 --jobs 2 --out benchmarks/gap_tip/seed_27182",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
     "stage_chain_duhem_linear": "python benchmarks/stage_chain.py devices --families {families} --seeds 0-5 --hold-s 0 "
                                 "--out benchmarks/stage_chain/thesis_duhem_linear",
@@ -372,15 +375,20 @@ def gap_figures() -> list[Fig]:
                 "carried was given a predicted shrink of 0 (an error of 1 by construction); the seed-90210 rows "
                 "replace it") if newer else ""
     tiers = [("benchmarks/gap_tip", "gap_tip", old_note)]
+    newest = (ROOT / "benchmarks/gap_tip/seed_27182/tip_scores.json").exists()
     if newer:
-        tiers.append(("benchmarks/gap_tip/seed_90210", "gap_tip_90210", ""))
+        tiers.append(("benchmarks/gap_tip/seed_90210", "gap_tip_90210",
+                      "; made before the absorption member of the charge link (its absorption cases rescored with it "
+                      "below); the seed-27182 rows are the current code" if newest else ""))
+    if newest:
+        tiers.append(("benchmarks/gap_tip/seed_27182", "gap_tip_27182", ""))
     recs = []
     for folder, key, note in tiers:
         tsrc = f"{folder}/tip_scores.json"
         t = json.loads((ROOT / tsrc).read_text())
         T = lambda *a, key=key, tsrc=tsrc: Fig(*a, source=tsrc, command=COMMANDS[key], date=DATES[key])  # noqa: E731
         seed = COMMANDS[key].split("--seed ")[1].split()[0]
-        sup = " (superseded)" if note else ""
+        sup = " (superseded)" if "superseded" in note else ""
         out.append(T(f"gap diagnostic, tip tier, seed {seed} ({t['n']} single-effect cases with their effect-free "
                      f"twins, a seed not used before): effects that cost >= 3 points of Table 3 and are named{note}",
                      f"{t['n_costly_named']} of {t['n_costly']}", ">= 90 % per effect family",

@@ -76,7 +76,7 @@ def test_fast_tier_meets_floors_from_the_campaign():
     assert sc["median_shrink_error"] <= 0.3
 
 
-@pytest.mark.parametrize("folder", ["gap_stages", "gap_tip", "gap_tip/seed_90210"])
+@pytest.mark.parametrize("folder", ["gap_stages", "gap_tip", "gap_tip/seed_90210", "gap_tip/seed_27182"])
 def test_committed_tip_tier_recomputes(folder):
     """The tip tier (default estimator, predicted against re-simulated tip shrink) recomputes from its records."""
     camp = ROOT / "benchmarks" / folder
