@@ -242,8 +242,11 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             d.update({CHAIN_MEMBERS[n]: "off" for n in names if is_carried(n) and n not in S})
         return d
 
-    def inputs_touched(S, mem) -> bool:  # a correction of Q or V changes the calibration: the estimator is refitted
-        return bool(mem) or any(k in ("q", "V") for n in S for per in corr[n].values() for k in per)
+    def touches_inputs(n) -> bool:  # a correction of Q or V changes the calibration: the estimator is refitted
+        return any(k in ("q", "V") for per in corr[n].values() for k in per)
+
+    def inputs_touched(S, mem) -> bool:
+        return bool(mem) or any(touches_inputs(n) for n in S)
 
     def table(S: frozenset, bare: bool = True, mem: dict | None = None):
         mem = members_of(S, bare) if mem is None else mem
@@ -261,7 +264,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             elif fitted is not None and not refit_outputs:
                 # the same rule for a refit: output-only corrections keep the estimator refitted for the input
                 # corrections and members of S, so subsets that differ by output corrections share one refit
-                S_in = frozenset(n for n in S if any(k in ("q", "V") for per in corr[n].values() for k in per))
+                S_in = frozenset(n for n in S if touches_inputs(n))
                 k_in = (S_in, key[1])
                 if k_in not in ests:
                     tr_in, _ = _apply(trials, [corr[n] for n in sorted(S_in)], meta)

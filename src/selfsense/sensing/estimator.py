@@ -568,7 +568,7 @@ class SelfSensingEstimator:
         rep["trial"] = free_id
         self._all_trials = None
         self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", [])),
-                            "amplifier": dict(self.amplifier_), "absorption": dict(self.absorption_)}
+                            "amplifier": dict(self.amplifier_)}
         self._fit_ranges(cal_trials, cal)
         return self
 
