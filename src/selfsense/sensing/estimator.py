@@ -567,8 +567,7 @@ class SelfSensingEstimator:
                 self.hysteresis_, rep = _fit_thesis_modified_pi(cfg, Q, y, dt)
         rep["trial"] = free_id
         self._all_trials = None
-        self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", [])),
-                            "amplifier": dict(self.amplifier_)}
+        self.fit_report_ = {"hysteresis": rep, "warnings": list(rep.get("warnings", []))}
         self._fit_ranges(cal_trials, cal)
         return self
 
