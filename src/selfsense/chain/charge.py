@@ -410,20 +410,20 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
         out.note = "no free-tip calibration trial with a displacement reference: absorption not identified"
         return out
 
-    def design(tau):
-        Xs, ys, blocks = [], [], []
-        for k, (_, m, dt, Q, V, dx) in enumerate(rows):
-            cols = [Q, Q * Q, np.gradient(Q, dt)]
-            if tau == "leak":
-                cols.append(leak_column(V, dt))
-            elif tau is not None:
-                cols.append(absorption_column(V, dt, tau))
-            one = np.zeros((len(Q), len(rows)))
-            one[:, k] = 1.0
-            Xs.append(np.column_stack(cols + [one])[m])
-            ys.append(dx[m])
-            blocks.append(np.minimum((np.arange(int(m.sum())) * n_blocks) // max(int(m.sum()), 1), n_blocks - 1))
-        return np.vstack(Xs), np.concatenate(ys), np.concatenate(blocks)
+    # the rows without the column (Q, Q^2, dQ/dt, one constant per trial), built once; the column of each candidate
+    # is inserted as the fourth
+    Xs, ys, blocks = [], [], []
+    for k, (_, m, dt, Q, V, dx) in enumerate(rows):
+        one = np.zeros((len(Q), len(rows)))
+        one[:, k] = 1.0
+        Xs.append(np.column_stack([Q, Q * Q, np.gradient(Q, dt), one])[m])
+        ys.append(dx[m])
+        blocks.append(np.minimum((np.arange(int(m.sum())) * n_blocks) // max(int(m.sum()), 1), n_blocks - 1))
+    X0, y, b = np.vstack(Xs), np.concatenate(ys), np.concatenate(blocks)
+
+    def design(column):
+        col = np.concatenate([column(V, dt)[m] for _, m, dt, _, V, _ in rows])
+        return np.column_stack([X0[:, :3], col, X0[:, 3:]])
 
     def cv(X, y, b):
         s = np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-300)   # column scaling for the conditioning only
@@ -436,14 +436,12 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
         e = np.concatenate(err)
         return float(np.sqrt(np.mean(e * e)))
 
-    X0, y, b = design(None)
     base = cv(X0, y, b)
     out.cv_rms_m_without = base
-    XL, _, _ = design("leak")
-    out.cv_rms_m_leak = cv(XL, y, b)
+    out.cv_rms_m_leak = cv(design(leak_column), y, b)
     best = None
     for tau in taus:
-        X, _, _ = design(tau)
+        X = design(lambda V, dt, tau=tau: absorption_column(V, dt, tau))
         e = cv(X, y, b)
         beta = np.linalg.lstsq(X, y, rcond=None)[0]
         c = float(-beta[3] / beta[0]) if beta[0] != 0 else 0.0

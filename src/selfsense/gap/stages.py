@@ -185,7 +185,10 @@ def _c_offset(s, ctx, g):
 
 
 def _c_absorption(s, ctx, g):
-    return (lp(s.V, g, s.dt) - s.V)[:, None]
+    # the charge of the estimator's absorption member (chain.charge): the diagnostic tests the same column
+    from selfsense.chain.charge import absorption_column
+
+    return (absorption_column(s.V, s.dt, g) - s.V)[:, None]
 
 
 def _c_creep(s, ctx, g):
