@@ -22,7 +22,7 @@ def test_stage_diagnose_cli_on_the_sample(tmp_path):
     out = tmp_path / "gap"
     assert main(["diagnose", str(SAMPLE), "--out", str(out), "--no-figures"]) == 0
     v = json.loads((out / "verdict.json").read_text())
-    assert set(v["stages"]) == {"holds", "electrical", "mechanical", "load"}
+    assert set(v["stages"]) == {"holds", "electrical", "mechanical", "blocked", "load"}
     assert v["stages"]["mechanical"]["observed"]
     case = load_case(SAMPLE, with_truth=False)
     ref = _summary(tip_table(case.trials, case.meta, case.rig,

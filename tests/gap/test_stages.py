@@ -114,6 +114,33 @@ def test_leakage_correction_recovers_the_actuator_charge(thr):
         assert after < 0.2 * before, (t, before, after)
 
 
+@pytest.mark.parametrize("family", ["gpi", "jiles_atherton"])
+def test_stress_dependent_hysteresis_named_from_the_blocked_tip_and_its_voltage_recovered(family, thr):
+    """H scaled by the tip load (the simulator: V_H (1 + m |f| / 0.1 N), m = 1) is named from the blocked-tip trials'
+    V against Q alone (no reference), and the stage-fitted stress part of V on the blocked calibration trial follows
+    the simulator's truth V_H - V_H / (1 + m |f| / 0.1 N): correlation > 0.98, amplitude within 30 %."""
+    from selfsense.gap.counterfactual import corrections
+
+    tr, me, rig, truth = simulate_family_case(family, 11, {"load.stress_hysteresis": 10.0}, 5, with_truth=True)
+    d = S.diagnose_stages(tr, me, rig, thr)
+    assert d["top"] == "load.stress_hysteresis" and d["effects"][0]["stage"] == "blocked"
+    dv = -corrections(d)["load.stress_hysteresis"]["cal_blocked"]["V"]
+    vh, f = truth["cal_blocked"]["V_H"].to_numpy(), truth["cal_blocked"]["f_tip"].to_numpy()
+    part = (vh - vh / (1.0 + 1.0 * np.abs(f) / 0.1))[len(vh) - len(dv):]
+    assert np.corrcoef(part, dv)[0, 1] > 0.98
+    assert 0.7 < np.std(dv) / np.std(part) < 1.3
+
+
+@pytest.mark.parametrize("family", ["preisach", "bouc_wen", "gpi", "jiles_atherton"])
+def test_blocked_stage_does_not_name_stress_for_a_temperature_drift_or_an_effect_free_device(family, thr):
+    """The blocked-tip stage's member is specific: a campaign-long temperature rise (C_p and alpha drifting) and an
+    effect-free device leave its gain below threshold."""
+    for eff in ({"slow.temperature": 15.0}, {}):
+        d, _ = _diag(family, eff, thr)
+        assert d["stages"]["blocked"]["observed"]
+        assert "load.stress_hysteresis" not in [e["effect"] for e in d["effects"]], (family, eff)
+
+
 def test_shapley_shares_of_named_effects_sum_to_the_joint_shrink(thr):
     """Shapley efficiency where effects ARE named: a device with absorption and leakage; the diagnosis names three
     charge-path effects, each with a non-zero share, and the shares sum to the tip shrink of all of them together

@@ -49,7 +49,7 @@ CORRECTION_KIND = {
     "slow.temperature": "charge_mech", "slow.creep": "dx_out", "rate.mechanism_mode": "dx_out",
     "slow.leakage@el": "charge_el", "slow.offset_drift@el": "charge_el", "slow.temperature@el": "charge_el",
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
-    "load.stress_hysteresis": "f_out", "load.contact": "f_out",
+    "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
 }
 N_BLOCKS = 6
 
@@ -75,7 +75,7 @@ def corrections(verdict: dict, chain: bool = False) -> dict:
         c = np.asarray(a["coef"], float)
         per = {}
         for s in sigs:
-            if m.stage == "load" and "f_hat" not in s.extra:
+            if m.stage in ("load", "blocked") and not {"f_hat", "v_h"} <= set(s.extra):
                 continue
             cols = m.cols(s, ctx, a["grid_value"])
             col = cols[:, 0] if kind == "voltage_amp" else cols @ c
@@ -87,6 +87,8 @@ def corrections(verdict: dict, chain: bool = False) -> dict:
                 per[s.name] = {"V": col}
             elif kind == "voltage_el":
                 per[s.name] = {"V": ctx["v_span"] * col / a["coef_ref"]}
+            elif kind == "voltage_blk":  # the blocked stage's target is V itself: take the stress part out
+                per[s.name] = {"V": -col}
             elif kind == "dx_out":
                 per[s.name] = {"dx": col}
             else:

@@ -16,6 +16,10 @@ residual that needs no truth, measured on the trials where the stage is observed
 * **mechanical** (free-tip trials): the laser against Q. On a free tip the displacement is proportional to the
   stored charge (eqs. 27 and 52 with f = 0), so the nominal model is a line in Q (plus a small quadratic term for
   the mechanism's kinematics) and the stage is almost null-free.
+* **blocked** (blocked-tip trials, reference-free): the actuator voltage V against the charge Q. With the tip
+  blocked x = 0, so V_p = Q / (n_A C_p) and V = Q / (n_A C_p) + H(Q) (thesis eqs. 27 and 55): the nominal model is
+  a line in Q plus the stand-in's H(Q) identified on the free-tip trial, with one offset per trial. An actuator
+  whose hysteresis depends on its stress (the tip load) shows there as V_H (1 + c f) with f proportional to Q.
 * **load** (force-reference trials): the load cell against the nominal estimate f^ (the fast stand-in of the
   sensing estimator, :class:`selfsense.gap.standin.FastSensingEstimator`, calibrated on the calibration trials), with
   Q and V free (eq. 46: the two-port cross terms are part of the nominal).
@@ -256,6 +260,16 @@ def _c_stress(s, ctx, g):
     return np.column_stack([fh * s.V / ctx["v_span"], fh * fh])
 
 
+def _c_stress_blocked(s, ctx, g):
+    """H(Q) scaled by the actuator stress, to first order in its linear part: on a blocked tip the stress is
+    proportional to Q, so V = Q / (n_A C_p) + H(Q) + c Q^2. A dependence on the field alone is part of H(Q), which is
+    identified on the free tip over the same charge range; at equal Q the blocked and the free tip differ only in
+    stress. On any other trial the stress proxy is the stand-in's force estimate over the blocked trials' force per
+    charge (``kappa``): the correction carries to contact trials and vanishes on a free tip."""
+    p = s.Q if s.tip == "blocked" else s.extra["f_hat"] / ctx["kappa"]
+    return (p * s.Q / ctx["q_span"] ** 2)[:, None]
+
+
 def _c_contact(s, ctx, g):
     fh = s.extra["f_hat"] / ctx["f_span"]
     c = np.maximum(fh, 0.0)
@@ -302,6 +316,10 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
            physics="first-loading (virgin) curve differs from the later branches"),
     # load stage: load cell against the nominal force estimate on force-reference trials
     Member("load.stress_hysteresis", "load", "load", _c_stress, physics="H(q) scaled by the tip load: f^ V, f^2"),
+    # blocked stage: V against Q on blocked-tip trials (reference-free)
+    Member("load.stress_hysteresis@blocked", "load", "blocked", _c_stress_blocked,
+           physics="H(q) scaled by the actuator stress: on a blocked tip f is proportional to Q, so V = Q / (n_A C_p) + "
+                   "H(Q) + c Q^2 (H's linear part scaled; H itself is identified on the free tip)"),
     Member("load.contact", "load", "load", _c_contact, physics="Hertz-like contact: f^1.5, f^0.5 (compressive)"),
 ]}
 
@@ -310,7 +328,7 @@ def effect_of(member: str) -> str:
     return member.split("@")[0]
 
 
-STAGES = ("holds", "electrical", "mechanical", "load")
+STAGES = ("holds", "electrical", "mechanical", "blocked", "load")
 
 
 # ------------------------------------------------------------------------------------------ nominal and generic
@@ -329,6 +347,8 @@ def _nominal(stage: str, s: StageSignals, ctx: dict, ntr: int) -> np.ndarray:
         P = _plays(v, np.arange(1, 11) / 10.0)
         C = np.column_stack([lp(v, tau, s.dt) - v for tau in CREEP_TAU_S])
         return np.column_stack([v, v * v, P, C, np.ones(len(s))])
+    if stage == "blocked":
+        return np.column_stack([s.Q / ctx["q_span"], s.extra["v_h"] / ctx["v_span"], onehot])
     if stage == "load":
         fh = s.extra["f_hat"] / ctx["f_span"]
         return np.column_stack([fh, s.Q / ctx["q_span"], s.V / ctx["v_span"], onehot])
@@ -345,6 +365,8 @@ def _generic(stage: str, s: StageSignals, ctx: dict) -> np.ndarray:
         P = _plays(u, [0.005, 0.015, 0.04])
         R = np.column_stack([resonator(u, f, 0.03, s.dt) - u for f in (0.5 * ny, 0.8 * ny)])
         return np.column_stack([P, R, u ** 3, lp(u, 0.02, s.dt) - u])
+    if stage == "blocked":
+        return np.column_stack([u * u, u ** 3, lp(u, 0.02, s.dt) - u, _plays(u, [0.005, 0.015, 0.04])])
     if stage == "electrical":
         v = s.V / ctx["v_span"]
         Z = np.column_stack([np.minimum(v, c) for c in (0.015, 0.04, 0.1)])
@@ -358,13 +380,15 @@ def _stage_trials(stage: str, sigs: list[StageSignals]) -> list[StageSignals]:
         return [s for s in sigs if len(s.extra.get("relay_vs", ())) >= 8 * N_BLOCKS]
     if stage in ("electrical", "mechanical"):
         return [s for s in sigs if s.tip == "free" and s.reference == "displacement" and np.isfinite(s.dx).all()]
+    if stage == "blocked":
+        return [s for s in sigs if s.tip == "blocked" and "v_h" in s.extra]
     return [s for s in sigs if s.reference == "force" and np.isfinite(s.f).all() and "f_hat" in s.extra]
 
 
 def _target(stage: str, s: StageSignals) -> np.ndarray:
     if stage == "holds":
         return s.extra["relay_vs"]
-    return {"electrical": s.Q, "mechanical": s.dx, "load": s.f}[stage]
+    return {"electrical": s.Q, "mechanical": s.dx, "blocked": s.V, "load": s.f}[stage]
 
 
 # --------------------------------------------------------------------------------------------------- CV engine
@@ -451,7 +475,11 @@ def _context(sigs: list[StageSignals]) -> dict:
     imax = max(float(np.max(np.abs(s.i))) for s in sigs)
     fh = [s.extra["f_hat"] for s in sigs if "f_hat" in s.extra]
     f_span = float(np.ptp(np.concatenate(fh))) if fh else 1.0
-    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "f_span": f_span or 1.0,
+    # force per charge on a blocked tip (the stand-in's f^ against Q): the stress proxy of the blocked stage
+    blk = [s for s in sigs if s.tip == "blocked" and "f_hat" in s.extra]
+    qq = sum(float(s.Q @ s.Q) for s in blk)
+    kappa = sum(float(s.extra["f_hat"] @ s.Q) for s in blk) / qq if qq > 0 else 0.0
+    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "f_span": f_span or 1.0, "kappa": kappa or 1.0,
             "order_mid": 0.5 * (min(s.order for s in sigs) + max(s.order for s in sigs)),
             "trial_index": {}}
 
@@ -620,18 +648,20 @@ def _cross_stage(stages: dict) -> None:
 
 def attach_force_estimate(sigs: list[StageSignals], trials: dict, meta: pd.DataFrame, rig) -> None:
     """Nominal force estimate f^ on every trial from the fast stand-in estimator calibrated on the calibration
-    trials (eqs. 27, 52, 55); stored in ``s.extra["f_hat"]`` (left out if the calibration fails)."""
+    trials (eqs. 27, 52, 55); stored in ``s.extra["f_hat"]``, with the stand-in's H(Q) in ``s.extra["v_h"]`` (both
+    left out if the calibration fails: the load and blocked stages are then unobserved)."""
     from .standin import FastSensingEstimator
 
     try:
         est = FastSensingEstimator(rig=rig).fit(trials, meta)
-    except Exception:  # noqa: BLE001 - the load stage is then unobserved, and the verdict says so
+    except Exception:  # noqa: BLE001 - the load and blocked stages are then unobserved, and the verdict says so
         return
     for s in sigs:
         df = trials[s.name]
         e = est.estimate(df)
         a = len(df) - len(s)
         s.extra["f_hat"] = e["f_hat"].to_numpy(float)[a:]
+        s.extra["v_h"] = e["V_H"].to_numpy(float)[a:]
 
 
 def prepare_signals(trials: dict, meta: pd.DataFrame, rig) -> tuple[list[StageSignals], dict]:

@@ -294,9 +294,10 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
         names = {"holds": "holds (shunt signal while the relay shorts the actuators, 0 V)",
                  "electrical": "electrical (measured charge against the actuator voltage, free-tip trials)",
                  "mechanical": "mechanical (laser against the measured charge, free-tip trials)",
+                 "blocked": "blocked (actuator voltage against the measured charge, blocked-tip trials, no reference)",
                  "load": "load (load cell against the nominal force estimate, force trials)"}
         rows = []
-        order = [k for k in ("holds", "electrical", "mechanical", "load") if k in vd["stages"]]
+        order = [k for k in ("holds", "electrical", "mechanical", "blocked", "load") if k in vd["stages"]]
         for st in order + [k for k in vd["stages"] if k not in order]:
             d = vd["stages"][st]
             if not d.get("observed"):
