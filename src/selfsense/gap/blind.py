@@ -41,11 +41,6 @@ THRESHOLDS_FILE = Path(__file__).with_name("stage_thresholds.json")
 #: at the default floor that tail alone raised the family-wise multiplier T from 2.38 to 2.88 for every member, and
 #: 0.04 is the smallest floor that leaves T unchanged (a rule on the null cases only)
 FLOOR_BY_STAGE = {"holds": 0.005, "blocked": 0.04}
-#: smallest gain scale of single members: the mechanical stage's temperature member (one charge gain per trial,
-#: linear in the trial order) has a null ten times tighter than its stage's other members (95 % quantile 0.0004
-#: against 0.003-0.005, largest 0.003 in 200 effect-free cases): 0.002 is five times its 95 % quantile and leaves T
-#: unchanged (chosen after the seed-27182 temperature cases had been looked at; scored first on a later seed)
-FLOOR_BY_MEMBER = {"slow.temperature": 0.002}
 #: smallest scale of a level test (a statistic with a null level of its own, not a gain): a null shift of that
 #: size on another rig (relay contact noise, a different in-amp) must not raise alarms
 FLOOR_LEVEL = 0.1
@@ -124,7 +119,7 @@ def calibrate(n: int, seed: int, jobs: int = 1, q: float = 0.95, floor: float = 
     members = list(MEMBERS)
     G = np.array([[r.get(m, np.nan) for m in members] for r in rows], float)
     fl = [FLOOR_LEVEL if MEMBERS[m].gain is not None
-          else FLOOR_BY_MEMBER.get(m, FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor)) for m in members]
+          else MEMBERS[m].null_floor or FLOOR_BY_STAGE.get(MEMBERS[m].stage, floor) for m in members]
     s = np.array([max(float(np.nanquantile(G[:, j], q)), fl[j]) for j in range(len(members))])
     T = float(np.nanquantile(np.nanmax(G / s, axis=1), q))
     thr = {m: float(T * s[j]) for j, m in enumerate(members)}
