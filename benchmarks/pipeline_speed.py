@@ -5,7 +5,9 @@
     python benchmarks/pipeline_speed.py --out speed.md          # also write the table to a file
 
 Runs ``snakemake all --cores N`` of the repository's Snakefile (with its workflow profile ``profiles/default``) on
-one bundled dataset in a fresh temporary working directory, so every result is computed again. Reports
+one bundled dataset in a fresh temporary working directory, so every result is computed again. Snakemake is started
+as ``selfsense run`` starts it (:func:`selfsense.cli.run.snakemake_command`: a local run without the SLURM executor
+plugins' start-up probe). Reports
 
 * the pipeline time by Snakemake's own clock (its closing line ``Elapsed time: ...``) and by this script's;
 * per rule: the number of jobs, the jobs' wall time summed from Snakemake's ``benchmark:`` files, and the split
@@ -73,8 +75,11 @@ def run(dataset: str, cores: int, numba_cold: bool, keep: Path | None) -> dict:
     env = dict(os.environ, MPLBACKEND="Agg")
     if numba_cold:
         env["NUMBA_CACHE_DIR"] = str(work / "numba-cache")
-    cmd = [sys.executable, "-m", "snakemake", "all", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-           str(work), "--configfile", str(work / "config.yaml"), "--cores", str(cores)]
+    from selfsense.cli.run import snakemake_command
+
+    cmd = snakemake_command(["all", "--snakefile", str(ROOT / "Snakefile"), "--directory", str(work), "--configfile",
+                             str(work / "config.yaml"), "--cores", str(cores)], env)
+    local = cmd[2] != "snakemake"
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=work)
@@ -97,7 +102,8 @@ def run(dataset: str, cores: int, numba_cold: bool, keep: Path | None) -> dict:
             r["startup"] += float(t[-1][0])
             r["compute"] += float(t[-1][1])
     return {"dataset": dataset, "cores": cores, "numba_cold": numba_cold, "snakemake_s": sm_clock, "wall_s": wall,
-            "load": (load0, load1), "rules": dict(rules), "workdir": str(work), "slurm_probe_s": slurm_probe_s()}
+            "load": (load0, load1), "rules": dict(rules), "workdir": str(work), "slurm_probe_s": slurm_probe_s(),
+            "probe_skipped": local}
 
 
 def markdown(res: dict) -> str:
@@ -110,8 +116,10 @@ def markdown(res: dict) -> str:
         f"{res['load'][0][0]:.2f} before, {res['load'][1][0]:.2f} after (machine with {os.cpu_count()} cores).",
         "",
         *([f"On this machine SLURM's client is installed and `scontrol show config` takes {res['slurm_probe_s']:.1f} s: "
-           "Snakemake's SLURM executor plugin runs it at every start (its controller is down here), and that wait is "
-           "part of the wall time above; a machine without SLURM, or with its controller up, does not wait.", ""]
+           "Snakemake's SLURM executor plugin runs it at every start (its controller is down here). "
+           + ("A local `selfsense run` starts Snakemake without that plugin (`selfsense.cli._local_snakemake`), so "
+              "the wall time above does not include the wait; `python -m snakemake` started by hand still waits."
+              if res.get("probe_skipped") else "That wait is part of the wall time above."), ""]
           if res.get("slurm_probe_s") is not None and res["slurm_probe_s"] > 1.0 else []),
         "| rule | jobs | job wall, s (sum) | start-up, s | compute, s | other, s | start-up / (start-up + compute) |",
         "|---|---|---|---|---|---|---|",

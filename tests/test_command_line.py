@@ -156,6 +156,45 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
     assert "--cores" not in args and args[args.index("--configfile") + 1] == str(tmp_path / "config.yaml")
 
 
+@pytest.mark.parametrize("args,env,local", [
+    (["--cores", "2"], {}, True),
+    (["--executor", "local"], {}, True),
+    (["-n"], {}, True),
+    (["--executor", "slurm"], {}, False),
+    (["--executor=cluster-generic"], {}, False),
+    (["-e", "slurm"], {}, False),
+    (["--profile", "workflow/profiles/slurm"], {}, False),
+    (["--workflow-profile=p"], {}, False),
+    (["--cores", "2"], {"SNAKEMAKE_PROFILE": "slurm"}, False),
+])
+def test_only_a_local_run_skips_the_slurm_plugin(args, env, local):
+    """A run on this machine starts Snakemake without the SLURM executor plugins (their start-up probe waits for an
+    unreachable controller); an executor other than a local one, or a profile that may name one, keeps them."""
+    cmd = pipeline_cli.snakemake_command(args, env)
+    assert cmd[:3] == [sys.executable, "-m", "selfsense.cli._local_snakemake" if local else "snakemake"]
+    assert cmd[3:] == args
+
+
+def test_the_local_launcher_hides_only_the_slurm_plugins():
+    """The local launcher removes the SLURM executor plugins from Snakemake's plugin discovery and nothing else; the
+    launcher's Snakemake lists the local executors and not slurm."""
+    from types import SimpleNamespace
+
+    from selfsense.cli._local_snakemake import without_skipped
+
+    mods = [SimpleNamespace(name=n) for n in ("snakemake_executor_plugin_slurm", "snakemake_executor_plugin_slurm_"
+                                             "jobstep", "snakemake_executor_plugin_cluster_generic", "numpy")]
+    assert [m.name for m in without_skipped(mods)] == ["snakemake_executor_plugin_cluster_generic", "numpy"]
+    code = ("import pkgutil, sys; from selfsense.cli import _local_snakemake as L; orig = pkgutil.iter_modules; "
+            "pkgutil.iter_modules = lambda path=None, prefix='': L.without_skipped(orig(path, prefix)); "
+            "from snakemake_interface_executor_plugins.registry import ExecutorPluginRegistry as R; "
+            "print(sorted(R().plugins))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    names = out.stdout
+    assert "slurm" not in names and "cluster-generic" in names
+
+
 def test_workflow_ships_with_the_package():
     d = pipeline_cli.workflow_dir()
     for rel in ("Snakefile", "config.yaml", "workflow/rules/pipeline.smk", "workflow/schemas/config.schema.yaml",

@@ -23,6 +23,7 @@ traceback stays in its log). Otherwise the exit code is Snakemake's.
 from __future__ import annotations
 
 import copy
+import os
 import signal
 import subprocess
 import sys
@@ -231,11 +232,31 @@ def _clear_stale_locks(workdir: Path) -> int:
     return n
 
 
+#: executors that run the jobs on this machine
+LOCAL_EXECUTORS = ("local", "dryrun", "touch")
+
+
+def runs_locally(args: list[str], env: dict | None = None) -> bool:
+    """Whether Snakemake will run the jobs on this machine: no executor other than a local one, no profile (a profile
+    may name any executor) and no ``SNAKEMAKE_PROFILE`` in the environment."""
+    env = os.environ if env is None else env
+    if _has_option(args, ("--profile", "--workflow-profile")) or env.get("SNAKEMAKE_PROFILE"):
+        return False
+    return all(v in LOCAL_EXECUTORS for v in _option_values(args, ("--executor", "-e")))
+
+
+def snakemake_command(args: list[str], env: dict | None = None) -> list[str]:
+    """The Snakemake command line of ``selfsense run``: a local run starts it without the SLURM executor plugins'
+    start-up probe (:mod:`selfsense.cli._local_snakemake`), any other run as ``python -m snakemake``."""
+    mod = "selfsense.cli._local_snakemake" if runs_locally(args, env) else "snakemake"
+    return [sys.executable, "-m", mod, *args]
+
+
 def _call_snakemake(args: list[str], cwd: Path) -> int:
     """Run Snakemake and wait for it, also on Ctrl-C: the interrupt reaches the child through the terminal's process
     group, and the parent waits until Snakemake has stopped its jobs and released its locks (a second Ctrl-C is
     passed on as a terminate)."""
-    proc = subprocess.Popen([sys.executable, "-m", "snakemake", *args], cwd=cwd)
+    proc = subprocess.Popen(snakemake_command(args), cwd=cwd)
     while True:
         try:
             return proc.wait()

@@ -1,0 +1,40 @@
+"""Snakemake for a run on this machine, without the SLURM executor plugins' start-up probe.
+
+Snakemake imports every installed executor plugin at start (``snakemake_interface_common.plugin_registry``: every
+top-level module named ``snakemake_executor_plugin_*``). The SLURM plugin (the ``slurm`` extra, for ``selfsense run
+--profile workflow/profiles/slurm``) then runs ``scontrol show config`` while building its option help; where SLURM's
+client is installed and its controller cannot be reached, that call waits up to 10 s at every start (9 s measured on
+the development machine). ``selfsense run`` starts Snakemake through this module when neither an executor nor a
+profile is given (:func:`selfsense.cli.run.runs_locally`), so such a run never loads those plugins; any other run
+starts ``python -m snakemake`` unchanged.
+
+    python -m selfsense.cli._local_snakemake [snakemake options]
+"""
+from __future__ import annotations
+
+import pkgutil
+import sys
+
+#: executor plugins a local run does not load (module-name prefix)
+SKIPPED_PLUGINS = ("snakemake_executor_plugin_slurm",)
+
+
+def without_skipped(modules):
+    """The module infos of ``pkgutil.iter_modules`` without the :data:`SKIPPED_PLUGINS`."""
+    return (m for m in modules if not m.name.startswith(SKIPPED_PLUGINS))
+
+
+def main(argv: list[str] | None = None) -> int:
+    orig = pkgutil.iter_modules
+
+    def iter_modules(path=None, prefix=""):
+        return without_skipped(orig(path, prefix))
+
+    pkgutil.iter_modules = iter_modules
+    from snakemake.cli import main as snakemake_main
+
+    return snakemake_main(sys.argv[1:] if argv is None else argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
