@@ -40,6 +40,7 @@ DATES = {
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
+    "gap_tip_14142": "2026-11-27",
     "stage_chain": "2026-11-26",
     "stage_chain_duhem_linear": "2026-11-26",
     "tip_amplifier": "2026-11-26",
@@ -72,6 +73,7 @@ COMMANDS = {
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
     # the same tier on another new seed with the absorption member of the charge link
     "gap_tip_27182": "selfsense gap blind --tip --n 120 --seed 27182 --jobs 2 --out benchmarks/gap_tip/seed_27182",
+    "gap_tip_14142": "selfsense gap blind --tip --n 240 --seed 14142 --jobs 2 --out benchmarks/gap_tip/seed_14142",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
     "stage_chain_duhem_linear": "python benchmarks/stage_chain.py devices --families {families} --seeds 0-5 --hold-s 0 "
                                 "--out benchmarks/stage_chain/thesis_duhem_linear",
@@ -380,8 +382,13 @@ def gap_figures() -> list[Fig]:
         tiers.append(("benchmarks/gap_tip/seed_90210", "gap_tip_90210",
                       "; made before the absorption member of the charge link (its absorption cases rescored with it "
                       "below); the seed-27182 rows are the current code" if newest else ""))
+    latest = (ROOT / "benchmarks/gap_tip/seed_14142/tip_scores.json").exists()
     if newest:
-        tiers.append(("benchmarks/gap_tip/seed_27182", "gap_tip_27182", ""))
+        tiers.append(("benchmarks/gap_tip/seed_27182", "gap_tip_27182",
+                      "; made before the gap diagnostic's blocked-tip stage (stress-dependent hysteresis) and the "
+                      "temperature member's null floor; the seed-14142 rows are the current code" if latest else ""))
+    if latest:
+        tiers.append(("benchmarks/gap_tip/seed_14142", "gap_tip_14142", ""))
     recs = []
     for folder, key, note in tiers:
         tsrc = f"{folder}/tip_scores.json"

@@ -268,8 +268,11 @@ def _c_stress_blocked(s, ctx, g):
     """H(Q) scaled by the actuator stress, to first order in its linear part: on a blocked tip the stress is
     proportional to Q, so V = Q / (n_A C_p) + H(Q) + c Q^2. A dependence on the field alone is part of H(Q), which is
     identified on the free tip over the same charge range; at equal Q the blocked and the free tip differ only in
-    stress. On any other trial the stress proxy is the stand-in's force estimate over the blocked trials' force per
-    charge (``kappa``): the correction carries to contact trials and vanishes on a free tip."""
+    stress. On a free tip there is no tip load (the column is 0); on any other trial the stress proxy is the stand-in's
+    force estimate over the blocked trials' force per charge (``kappa``), so that a correction carries to contact
+    trials."""
+    if s.tip == "free":
+        return np.zeros((len(s), 1))
     p = s.Q if s.tip == "blocked" else s.extra["f_hat"] / ctx["kappa"]
     return (p * s.Q / ctx["q_span"] ** 2)[:, None]
 
