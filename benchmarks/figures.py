@@ -41,7 +41,7 @@ DATES = {
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
-    "gap_tip_14142": "2026-11-27",
+    "gap_tip_14142": "2026-11-26",
     "stage_chain": "2026-11-26",
     "stage_chain_duhem_linear": "2026-11-26",
     "tip_amplifier": "2026-11-26",
