@@ -465,7 +465,8 @@ def bench_pipeline(quick):
         return {"available": True, "snakemake_s": r["snakemake_s"], "wall_s": r["wall_s"], "load": r["load"],
                 "rules": r["rules"], "table3_md": (tables / "table3.md").read_text(),
                 "modes_md": (tables / "modes.md").read_text(), "table3_rows": t3, "modes_rows": modes,
-                "slurm_probe_s": r.get("slurm_probe_s"), "ok": r["wall_s"] <= 15.0}
+                "slurm_probe_s": r.get("slurm_probe_s"), "probe_skipped": r.get("probe_skipped"),
+                "ok": r["wall_s"] <= 15.0}
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -701,7 +702,8 @@ def render(res, quick, argv, total):
               "again):", "", pipeline_speed.markdown({"dataset": "tweezer_sim", "cores": 2, "numba_cold": False,
                                                       "snakemake_s": d["snakemake_s"], "wall_s": d["wall_s"],
                                                       "load": d["load"], "rules": d["rules"],
-                                                      "slurm_probe_s": d.get("slurm_probe_s")}),
+                                                      "slurm_probe_s": d.get("slurm_probe_s"),
+                                                      "probe_skipped": d.get("probe_skipped")}),
               "Table 3 of that run (`results/tweezer_sim/tables/table3.md`):", "", d["table3_md"].strip(), "",
               "H(q) identifications and calibration modes of that run (`results/tweezer_sim/tables/modes.md`):", "",
               d["modes_md"].strip()]
