@@ -354,14 +354,20 @@ def stage_chain_figures() -> list[Fig]:
     return out
 
 
+def _generations(entries: list[tuple[str, str, str]], marker: str) -> list[tuple[str, str, str]]:
+    """The campaigns of one benchmark, oldest first, that exist (``folder/marker``): ``(folder, key, note)``, each
+    with its note (what a later campaign changed) only where a later one exists."""
+    have = [e for e in entries if (ROOT / e[0] / marker).exists()]
+    return [(folder, key, note if i < len(have) - 1 else "") for i, (folder, key, note) in enumerate(have)]
+
+
 def gap_figures() -> list[Fig]:
     out = []
-    newer = (ROOT / "benchmarks/gap_stages/seed_16180/scores.json").exists()
-    campaigns = [("benchmarks/gap_stages/scores.json", "gap_stages",
-                  "; made before the blocked-tip stage and the temperature member's null floor; the seed-16180 rows "
-                  "are the current code" if newer else "")]
-    if newer:
-        campaigns.append(("benchmarks/gap_stages/seed_16180/scores.json", "gap_stages_16180", ""))
+    campaigns = [(f"{folder}/scores.json", key, note) for folder, key, note in _generations([
+        ("benchmarks/gap_stages", "gap_stages", "; made before the blocked-tip stage and the temperature member's null "
+         "floor; the seed-16180 rows are the current code"),
+        ("benchmarks/gap_stages/seed_16180", "gap_stages_16180", ""),
+    ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())
         F = lambda *a, src=src, key=key: Fig(*a, source=src, command=COMMANDS[key], date=DATES[key])  # noqa: E731
@@ -383,24 +389,19 @@ def gap_figures() -> list[Fig]:
 
     from selfsense.gap.blind import cost_table, shrink_by_effect
 
-    nsrc = "benchmarks/gap_tip/seed_90210/tip_scores.json"
-    newer = (ROOT / nsrc).exists()
-    old_note = ("; **superseded**: simulated before the simulator's stress fix, and an effect the estimator already "
-                "carried was given a predicted shrink of 0 (an error of 1 by construction); the seed-90210 rows "
-                "replace it") if newer else ""
-    tiers = [("benchmarks/gap_tip", "gap_tip", old_note)]
-    newest = (ROOT / "benchmarks/gap_tip/seed_27182/tip_scores.json").exists()
-    if newer:
-        tiers.append(("benchmarks/gap_tip/seed_90210", "gap_tip_90210",
-                      "; made before the absorption member of the charge link (its absorption cases rescored with it "
-                      "below); the seed-27182 rows are the current code" if newest else ""))
-    latest = (ROOT / "benchmarks/gap_tip/seed_14142/tip_scores.json").exists()
-    if newest:
-        tiers.append(("benchmarks/gap_tip/seed_27182", "gap_tip_27182",
-                      "; made before the gap diagnostic's blocked-tip stage (stress-dependent hysteresis) and the "
-                      "temperature member's null floor; the seed-14142 rows are the current code" if latest else ""))
-    if latest:
-        tiers.append(("benchmarks/gap_tip/seed_14142", "gap_tip_14142", ""))
+    seed_90210 = (ROOT / "benchmarks/gap_tip/seed_90210/tip_scores.json").exists()   # rows below refer to it
+    tiers = _generations([
+        ("benchmarks/gap_tip", "gap_tip",
+         "; **superseded**: simulated before the simulator's stress fix, and an effect the estimator already carried "
+         "was given a predicted shrink of 0 (an error of 1 by construction); the seed-90210 rows replace it"),
+        ("benchmarks/gap_tip/seed_90210", "gap_tip_90210",
+         "; made before the absorption member of the charge link (its absorption cases rescored with it below); the "
+         "seed-27182 rows are the current code"),
+        ("benchmarks/gap_tip/seed_27182", "gap_tip_27182",
+         "; made before the gap diagnostic's blocked-tip stage (stress-dependent hysteresis) and the temperature "
+         "member's null floor; the seed-14142 rows are the current code"),
+        ("benchmarks/gap_tip/seed_14142", "gap_tip_14142", ""),
+    ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
         tsrc = f"{folder}/tip_scores.json"
@@ -471,7 +472,7 @@ def gap_figures() -> list[Fig]:
                        f"{sum(r['supported'] for r in nl)} of {len(nl)}", "", "measured", nsrc_,
                        COMMANDS["absorption_null"], DATES["absorption_null"]))
     amsrc = "benchmarks/gap_tip/absorption_member_90210.jsonl.gz"
-    if (ROOT / amsrc).exists() and newer:
+    if (ROOT / amsrc).exists() and seed_90210:
         from selfsense.gap.blind import _truth
 
         am = [json.loads(x) for x in gzip.open(ROOT / amsrc, "rt")]
@@ -520,7 +521,7 @@ def gap_figures() -> list[Fig]:
     if m and e:
         sup = ("; **superseded**: a member the estimator carried was given a predicted shrink of 0 (an error of 1 by "
                "construction); the seed-90210 tip tier above scores leakage and offset drift with the member's own "
-               "contribution") if newer else ""
+               "contribution") if seed_90210 else ""
         out.append(Fig(f"stage chain, tip tier on the charge link's effects ({m.group(1)} cases, leakage and offset "
                        "drift): named top-1; median relative error of the predicted tip shrink "
                        f"({e.group(1)} scored){sup}", f"{m.group(2)} of {m.group(1)}; {float(e.group(2)):.2f}",
