@@ -185,8 +185,7 @@ def test_the_local_launcher_hides_only_the_slurm_plugins():
     mods = [SimpleNamespace(name=n) for n in ("snakemake_executor_plugin_slurm", "snakemake_executor_plugin_slurm_"
                                              "jobstep", "snakemake_executor_plugin_cluster_generic", "numpy")]
     assert [m.name for m in without_skipped(mods)] == ["snakemake_executor_plugin_cluster_generic", "numpy"]
-    code = ("import pkgutil, sys; from selfsense.cli import _local_snakemake as L; orig = pkgutil.iter_modules; "
-            "pkgutil.iter_modules = lambda path=None, prefix='': L.without_skipped(orig(path, prefix)); "
+    code = ("from selfsense.cli._local_snakemake import hide_skipped_plugins; hide_skipped_plugins(); "
             "from snakemake_interface_executor_plugins.registry import ExecutorPluginRegistry as R; "
             "print(sorted(R().plugins))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

@@ -24,13 +24,19 @@ def without_skipped(modules):
     return (m for m in modules if not m.name.startswith(SKIPPED_PLUGINS))
 
 
-def main(argv: list[str] | None = None) -> int:
+def hide_skipped_plugins() -> None:
+    """Leave the :data:`SKIPPED_PLUGINS` out of ``pkgutil.iter_modules``, where Snakemake's plugin registry looks for
+    executor plugins (call before Snakemake collects them)."""
     orig = pkgutil.iter_modules
 
     def iter_modules(path=None, prefix=""):
         return without_skipped(orig(path, prefix))
 
     pkgutil.iter_modules = iter_modules
+
+
+def main(argv: list[str] | None = None) -> int:
+    hide_skipped_plugins()
     from snakemake.cli import main as snakemake_main
 
     return snakemake_main(sys.argv[1:] if argv is None else argv)
