@@ -1,7 +1,7 @@
 # The main DAG (docs/method.md): validate -> ingest -> calibrate H(q) -> regress A -> estimate -> score -> figures
 # -> report. Light rules use `run:` and execute inside the Snakemake process (no interpreter, NumPy, numba or
 # cvxpy start-up per job, docs/benchmarks.md); on a cluster every job, per trial included, is still a job of its
-# own. Heavy rules with plotting use `script:` and run in a process of their own.
+# own. Heavy rules (plotting, model selection, the gap diagnostic) use `script:` and run in a process of their own.
 
 
 rule validate_dataset:
@@ -57,25 +57,20 @@ rule calibrate_hysteresis:
     benchmark:
         res("{dataset}", "benchmarks", "calibrate_hysteresis.tsv")
     # nothing else of the dataset can run beside it (every later job needs the model): the H(q) selection
-    # cross-validates two candidates at a time (selfsense.hysteresis.models.select.cv_workers, the same bits on
-    # any number of threads); Snakemake lowers it to --cores
+    # cross-validates two candidates at a time in forked workers (selfsense.parallel.fork_map; the fits hold the
+    # GIL, so threads of the Snakemake process would take turns), the same bits for any number of threads;
+    # Snakemake lowers it to --cores. A script: a process of its own, from which the workers can be forked
     threads: 2
     resources:
         mem_mb=4000,
         runtime=30,
+    conda:
+        "../envs/selfsense.yaml"
     params:
         dataset_dir=dataset_dir,
         config=SENSING_CONFIG,
-    run:
-        stages.run_job(
-            "calibrate_hysteresis",
-            input,
-            output,
-            params,
-            wildcards,
-            log,
-            threads=threads,
-        )
+    script:
+        "../scripts/calibrate_hysteresis.py"
 
 
 rule regress_coefficients:

@@ -7,4 +7,5 @@ with stages.logged(snakemake.log[0]):  # noqa: F821
     signals = stages.by_trial(snakemake.input.signals)  # noqa: F821
     run_pipeline_diagnosis(snakemake.params.dataset_dir, signals, snakemake.input.model,  # noqa: F821
                            snakemake.params.config, snakemake.output.gap,  # noqa: F821
-                           table3_csv=snakemake.input.table3, seed=int(snakemake.params.seed))  # noqa: F821
+                           table3_csv=snakemake.input.table3, seed=int(snakemake.params.seed),  # noqa: F821
+                           workers=snakemake.threads)  # noqa: F821

@@ -66,7 +66,7 @@ def leak_column(V: np.ndarray, dt: float) -> np.ndarray:
 
 
 def _lowpass(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
-    from scipy.signal import lfilter
+    from selfsense.signals.iir import lfilter
 
     x = np.asarray(x, float)
     if len(x) == 0:
@@ -348,7 +348,7 @@ def absorption_column(V: np.ndarray, dt: float, tau: float) -> np.ndarray:
     R-C absorption branch with ``tau = R C`` in parallel with the actuators, exact for a piecewise-constant V. The
     charge that branch draws through the shunt is ``c * absorption_column(V, dt, tau)`` with ``c`` its capacitance
     [F]; it polarises nothing, so the actuators' charge is ``Q - c LP_tau(V)``."""
-    from scipy.signal import lfilter
+    from selfsense.signals.iir import lfilter
 
     V = np.asarray(V, float)
     if len(V) == 0:

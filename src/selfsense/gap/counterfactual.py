@@ -31,10 +31,12 @@ bootstrap over contiguous blocks of the validation trials gives 90 % intervals o
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
+
+from selfsense.parallel import fork_map
 
 from .stages import MEMBERS
 
@@ -203,7 +205,7 @@ def _summary(rows: dict) -> dict:
 
 def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_estimator: Callable,
                    n_boot: int = 200, seed: int = 0, max_effects: int = 5, fitted=None,
-                   refit_outputs: bool = True) -> dict:
+                   refit_outputs: bool = True, workers: int = 1, also_members: Sequence[dict] = ()) -> dict:
     """Tip error before / after each confirmed effect's fixed correction and all together, Shapley values and
     bootstrap intervals. ``make_estimator(rig)`` returns an unfitted estimator with ``fit`` / ``estimate``.
 
@@ -218,7 +220,11 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
 
     All together and the Shapley values are the game on the chain with every carried confirmed member off (``base``
     of the result; Table 3 itself where none is carried): v(S) = base - Table 3 with the members of S on and the
-    corrections of S applied."""
+    corrections of S applied.
+
+    ``workers``: recalibrations run this many at a time (:func:`selfsense.parallel.fork_map`; each is the same
+    deterministic fit, so the result has the same bits for any count). ``also_members``: forced-member sets of the uncorrected chain to recalibrate
+    in the same pool for a later :func:`chain_contributions` (their tables join ``_tables``)."""
     from itertools import combinations
 
     from .stats import shapley_exact
@@ -250,36 +256,89 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     def inputs_touched(S, mem) -> bool:
         return bool(mem) or any(touches_inputs(n) for n in S)
 
+    def refit_key(S: frozenset, mem: dict):
+        """The recalibration that scores S with ``mem`` forced: None for the fitted estimator itself, else (the
+        corrections it is fitted on, the forced members)."""
+        plain = not mem and not any(per for n in S for per in corr[n].values())
+        if fitted is not None and (plain or (not refit_outputs and not inputs_touched(S, mem))):
+            # output-only corrections (charge-free motion, load stage) leave the estimator's inputs unchanged; with
+            # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
+            # estimator costs seconds), which ignores the small change of its coefficients
+            return None
+        if fitted is not None and not refit_outputs:
+            # the same rule for a refit: output-only corrections keep the estimator refitted for the input
+            # corrections and members of S, so subsets that differ by output corrections share one refit
+            return frozenset(n for n in S if touches_inputs(n)), tuple(sorted(mem.items()))
+        return S, tuple(sorted(mem.items()))
+
+    def refit(k):
+        S_fit, mem_items = k
+        tr_fit, _ = _apply(trials, [corr[n] for n in sorted(S_fit)], meta)
+        return _make(make_estimator, rig, dict(mem_items), form).fit(tr_fit, meta)
+
     def table(S: frozenset, bare: bool = True, mem: dict | None = None):
         mem = members_of(S, bare) if mem is None else mem
         key = (S, tuple(sorted(mem.items())))
         if key not in tabs:
             # a carried member's own correction is the member itself (``corrections(chain=True)`` gives none)
             tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
-            # output-only corrections (charge-free motion, load stage) leave the estimator's inputs unchanged; with
-            # refit_outputs=False the fitted estimator is kept for them (the pipeline: a refit of the configured
-            # estimator costs tens of seconds), which ignores the small change of its coefficients
-            plain = not mem and not any(per for n in S for per in corr[n].values())
-            est = None
-            if fitted is not None and (plain or (not refit_outputs and not inputs_touched(S, mem))):
+            k = refit_key(S, mem)
+            if k is None:
                 est = fitted
-            elif fitted is not None and not refit_outputs:
-                # the same rule for a refit: output-only corrections keep the estimator refitted for the input
-                # corrections and members of S, so subsets that differ by output corrections share one refit
-                S_in = frozenset(n for n in S if touches_inputs(n))
-                k_in = (S_in, key[1])
-                if k_in not in ests:
-                    tr_in, _ = _apply(trials, [corr[n] for n in sorted(S_in)], meta)
-                    ests[k_in] = _make(make_estimator, rig, mem, form).fit(tr_in, meta)
-                est = ests[k_in]
+            else:
+                if k not in ests:
+                    ests[k] = refit(k)
+                est = ests[k]
             tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=est, members=mem, form=form)
         return tabs[key]
+
+    def planned():
+        """Every (S, bare, mem) this function scores below, in order (the recalibrations they need are fitted in
+        one pool first)."""
+        yield frozenset(), False, None
+        for mem in also_members:
+            yield frozenset(), True, dict(mem)
+        if not names:
+            return
+        yield frozenset(), True, None
+        for n in names:
+            yield (frozenset(), True, {CHAIN_MEMBERS[n]: "off"}) if is_carried(n) else (frozenset([n]), False, None)
+        for k in range(1, len(names) + 1):
+            if len(names) > 3 and k not in (1, len(names)):
+                continue
+            for S in combinations(names, k):
+                yield frozenset(S), True, None
+
+    if workers > 1:
+        # the recalibrations are independent: each, with the tables scored on it, in a process of its own (the fits
+        # hold the GIL most of the time, so threads would take turns); the tables come back, not the estimators
+        groups: dict = {}
+        for S, bare, mem in planned():
+            mem = members_of(S, bare) if mem is None else mem
+            k = refit_key(S, mem)
+            if k is not None:
+                groups.setdefault(k, []).append((S, mem))
+        if len(groups) > 1:
+            def unit(k):
+                est = refit(k)
+                out = {}
+                for S, mem in groups[k]:
+                    tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
+                    out[(S, tuple(sorted(mem.items())))] = tip_table(tr, meta, rig, make_estimator, oc,
+                                                                     estimator=est, members=mem, form=form)
+                return out
+
+            for done in fork_map(unit, list(groups), workers):
+                tabs.update(done)
 
     fitted_tab = table(frozenset(), bare=False)
     res = {"before": _summary(fitted_tab), "per_trial_before": {t: r["error"] for t, r in fitted_tab.items()},
            "effects": {}}
+    for mem in also_members:
+        table(frozenset(), mem=dict(mem))
     if not names:
         res["after_all"] = res["before"]
+        res["_tables"] = {mem: t for (S, mem), t in tabs.items() if not S}
         return res
     base = table(frozenset())
     res["base"] = _summary(base)
@@ -321,6 +380,13 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     # the uncorrected chain's tables by forced members, for :func:`chain_contributions` (not JSON: pop it)
     res["_tables"] = {mem: t for (S, mem), t in tabs.items() if not S}
     return res
+
+
+def contribution_sets(fitted) -> list[dict]:
+    """The forced-member sets :func:`chain_contributions` scores: each carried member off, and all of them off when
+    more than one is carried."""
+    on = [m for m, a in adopted_members(fitted).items() if a]
+    return [{m: "off"} for m in on] + ([{m: "off" for m in on}] if len(on) > 1 else [])
 
 
 def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, fitted,

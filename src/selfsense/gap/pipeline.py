@@ -54,23 +54,26 @@ def why_not(verdict: dict) -> list[dict]:
 
 
 def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitted=None, thresholds=None,
-                     seed: int = 0, n_boot: int = 200, refit_outputs: bool = True) -> dict:
-    """Stage verdict + tip counterfactual of one dataset in memory (JSON-able dict)."""
+                     seed: int = 0, n_boot: int = 200, refit_outputs: bool = True, workers: int = 1) -> dict:
+    """Stage verdict + tip counterfactual of one dataset in memory (JSON-able dict). ``workers``: recalibrations of
+    the counterfactual and of the chain's member contributions fitted at a time (the same bits for any count)."""
     from .blind import load_stage_thresholds
-    from .counterfactual import chain_contributions, counterfactual
+    from .counterfactual import chain_contributions, contribution_sets, counterfactual
     from .protocol import excitation_check, proposal
 
     from .stages import diagnose_stages
 
     thr = load_stage_thresholds() if thresholds is None else thresholds
     v = diagnose_stages(trials, meta, rig, thr)
+    chain = fitted is not None and hasattr(fitted, "members")
     cf = counterfactual(trials, meta, rig, v, make_estimator, n_boot=n_boot, seed=seed, fitted=fitted,
-                        refit_outputs=refit_outputs)
+                        refit_outputs=refit_outputs, workers=workers,
+                        also_members=contribution_sets(fitted) if chain else ())
     v = {k: x for k, x in v.items() if not k.startswith("_")}
     v["thresholds"] = thr
     tables = cf.pop("_tables", None)
     v["tip"] = cf
-    if fitted is not None and hasattr(fitted, "members"):
+    if chain:
         # the estimator's own chain members: Table 3 with and without each (the same chain the counterfactual forces)
         v["chain"] = chain_contributions(trials, meta, rig, make_estimator, fitted, tables=tables)
     v["candidates"] = why_not(v)
@@ -248,8 +251,9 @@ def _config_record(cfg) -> dict:
 
 def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
                            config: Mapping[str, Any], out_dir: str | Path, table3_csv: str | Path | None = None,
-                           seed: int = 0, figures: bool = True, force: bool = True) -> dict:
-    """The pipeline's gap rule: pipeline signals + fitted model -> verdict files in ``out_dir``."""
+                           seed: int = 0, figures: bool = True, force: bool = True, workers: int = 1) -> dict:
+    """The pipeline's gap rule: pipeline signals + fitted model -> verdict files in ``out_dir``; ``workers``: the
+    rule's threads (recalibrations fitted at a time)."""
     from selfsense import io as sio
     from selfsense.io import output_dir
     from selfsense.stages import load_estimator
@@ -270,7 +274,7 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
     meta = meta.loc[[t for t in meta.index if t in trials]]
     fitted = load_estimator(dataset_dir, model_json)
     cfg, make = _configured(config)
-    v = diagnose_dataset(trials, meta, rig, make, fitted=fitted, seed=seed, refit_outputs=False)
+    v = diagnose_dataset(trials, meta, rig, make, fitted=fitted, seed=seed, refit_outputs=False, workers=workers)
     v["counterfactual_note"] = ("charge and voltage corrections: the configured estimator recalibrated on the "
                                 "corrected calibration trials; output corrections (charge-free motion, load stage): "
                                 "the pipeline's fitted model with the correction added to its estimate")

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
+from selfsense.signals.iir import lfilter
 
 __all__ = ["dt_of", "lowpass", "leaky_integral", "deriv", "t_active", "branch", "first_loading", "active"]
 

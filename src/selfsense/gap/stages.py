@@ -44,7 +44,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
+from selfsense.signals.iir import lfilter
 
 from selfsense.signals.kernels import shunt_current, trapezoid_increment
 

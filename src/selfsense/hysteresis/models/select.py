@@ -52,9 +52,10 @@ _CV_WORKERS: contextvars.ContextVar[int] = contextvars.ContextVar("selfsense_cv_
 
 @contextlib.contextmanager
 def cv_workers(n: int):
-    """Let :func:`select_h_model` cross-validate up to ``n`` candidates at a time, in threads, inside this block
-    (of this thread or task only: a context variable). Each candidate's blocked CV is independent of the others
-    and computed by the same code on the same inputs in whichever thread, so the selection table -- and the model
+    """Let :func:`select_h_model` cross-validate up to ``n`` candidates at a time inside this block (of this thread
+    or task only: a context variable): in forked processes where the job runs a process of its own, else in threads
+    (:func:`selfsense.parallel.fork_map`). Each candidate's blocked CV is independent of the others and computed
+    by the same code on the same inputs in whichever worker, so the selection table -- and the model
     -- are bit-identical for every ``n`` (the BLAS libraries stay pinned to one thread each,
     :func:`selfsense.determinism.single_thread_blas`). The pipeline's ``calibrate_hysteresis`` job sets it to its
     ``threads`` (nothing else runs beside it)."""
@@ -343,13 +344,13 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
 
     workers = min(_CV_WORKERS.get(), len(candidates))
     if workers > 1:
-        from concurrent.futures import ThreadPoolExecutor
+        from selfsense.parallel import fork_map
 
         order = sorted(range(len(candidates)), key=lambda i: _cost_rank(candidates[i][0]))
-        with ThreadPoolExecutor(workers, thread_name_prefix="h-cv") as pool:
-            # each worker runs in a copy of this thread's context (the job's log routing, selfsense.stages.logged)
-            futs = {i: pool.submit(contextvars.copy_context().run, row, candidates[i]) for i in order}
-            table = [futs[i].result() for i in range(len(candidates))]
+        rows = fork_map(row, [candidates[i] for i in order], workers, threads_fallback=True)
+        table = [None] * len(candidates)
+        for i, r in zip(order, rows):
+            table[i] = r
     else:
         table = [row(c) for c in candidates]
     _reject_unstable(table)
