@@ -1,6 +1,6 @@
 """``selfsense gap ...``: the stage-wise sim-to-real gap diagnostic and its blind check (docs/gap.md).
 
-  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--configfile config.yaml] [--seed S]
+  selfsense gap diagnose DATASET_DIR --out OUT_DIR [--configfile config.yaml] [--seed S] [--jobs J]
   selfsense gap blind --n N --seed S --out DIR [--jobs J] [--thresholds FILE.json] [--tip]
   selfsense gap blind-calibrate --n N --seed S --out FILE.json [--jobs J]     (null thresholds)
 """
@@ -20,7 +20,8 @@ def _diagnose(a) -> int:
     from selfsense.gap.pipeline import run_stage_diagnose
 
     cfg = yaml.safe_load(Path(a.configfile).read_text()) if a.configfile else {}
-    v = run_stage_diagnose(a.dataset_dir, a.out, cfg, seed=a.seed, figures=not a.no_figures, force=a.force)
+    v = run_stage_diagnose(a.dataset_dir, a.out, cfg, seed=a.seed, figures=not a.no_figures, force=a.force,
+                           workers=a.jobs)
     print(f"gap diagnose {a.dataset_dir}: {v['message']} Wrote {a.out}")
     return 0
 
@@ -90,6 +91,8 @@ def main(argv: list[str] | None = None) -> int:
                    "estimator that is diagnosed (default: the pipeline's defaults)")
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
     d.add_argument("--no-figures", action="store_true", help="skip the figure (faster)")
+    d.add_argument("--jobs", type=int, default=1, help="recalibrations fitted at a time, in worker processes "
+                   "(results do not depend on it)")
     d.add_argument("--force", action="store_true",
                    help="replace --out even if it is a non-empty folder selfsense did not create")
     d.set_defaults(fn=_diagnose)

@@ -294,11 +294,12 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
 
 
 def run_stage_diagnose(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str, Any] | None = None,
-                       seed: int = 0, figures: bool = True, force: bool = False) -> dict:
+                       seed: int = 0, figures: bool = True, force: bool = False, workers: int = 1) -> dict:
     """``selfsense gap diagnose``: the same diagnosis on a raw dataset outside the pipeline. The dataset is
     validated and prepared as the pipeline's ingest does (thesis eqs. 56-57), the configured estimator (``config``:
     the ``calibration`` / ``estimation`` sections, default: the pipeline's defaults) is calibrated on its
-    calibration trials, then diagnosed; ``out_dir`` is written all-or-nothing."""
+    calibration trials, then diagnosed (``workers``: recalibrations fitted at a time, the same result for any
+    count); ``out_dir`` is written all-or-nothing."""
     from selfsense.io import check_output_dir, output_dir
 
     from .data import load_case
@@ -307,7 +308,8 @@ def run_stage_diagnose(dataset_dir: str | Path, out_dir: str | Path, config: Map
     case = load_case(dataset_dir, with_truth=False)
     cfg, make = _configured(config or {})
     fitted = make(case.rig).fit(case.trials, case.meta)
-    v = diagnose_dataset(case.trials, case.meta, case.rig, make, fitted=fitted, seed=seed, refit_outputs=False)
+    v = diagnose_dataset(case.trials, case.meta, case.rig, make, fitted=fitted, seed=seed, refit_outputs=False,
+                         workers=workers)
     v["estimator"] = {"config": _config_record(cfg)}
     if case.decimated:
         v["decimated"] = {t: int(k) for t, k in sorted(case.decimated.items())}
