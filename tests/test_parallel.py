@@ -54,3 +54,15 @@ def _fail(x):
 def test_an_exception_in_a_worker_reaches_the_caller():
     with pytest.raises(ValueError, match="item 2 is bad"):
         fork_map(_fail, range(4), 2)
+
+
+def _nested(x):
+    return fork_map(_pid_and_square, [x, x + 1], 2)
+
+
+def test_a_worker_that_maps_again_runs_its_items_itself():
+    if not can_fork():
+        pytest.skip("no fork here")
+    out = fork_map(_nested, [1, 5], 2)
+    assert [[r for _, r in o] for o in out] == [[1, 4], [25, 36]]
+    assert all(len({p for p, _ in o}) == 1 for o in out)   # in the worker itself: a pool's worker has no children

@@ -22,9 +22,11 @@ def _call(item):
 
 
 def can_fork() -> bool:
-    """Whether forking workers is safe here: the platform has ``fork`` and this process runs one thread (a fork
-    copies only the calling thread, so a lock held by another thread would stay locked in the child)."""
-    return "fork" in mp.get_all_start_methods() and threading.active_count() == 1
+    """Whether forking workers is safe here: the platform has ``fork``, this process runs one thread (a fork
+    copies only the calling thread, so a lock held by another thread would stay locked in the child) and is not
+    itself a pool's worker (those may not have children)."""
+    return ("fork" in mp.get_all_start_methods() and threading.active_count() == 1
+            and not mp.current_process().daemon)
 
 
 def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int, threads_fallback: bool = False) -> list[R]:
