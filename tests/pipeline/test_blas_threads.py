@@ -7,7 +7,8 @@ BLAS threads depending on which worker picked the job, and ``model/hysteresis.js
 differed in the last bits between two identical Snakemake runs. Here the calibration stage runs in two processes:
 one on one BLAS thread in its main thread, one with ``OPENBLAS_NUM_THREADS=2`` in a second worker thread while the
 first worker (which set the limit) is still alive, as in the Snakemake process, and with the rule's ``threads: 2``
-(the H(q) selection cross-validates two candidates at a time). Both must write identical files.
+(the H(q) selection cross-validates two candidates at a time, in threads there); and in a process of its own with two
+forked workers, as the ``calibrate_hysteresis`` script runs. All must write identical files.
 """
 from __future__ import annotations
 
@@ -45,6 +46,8 @@ def calibrate():
                    Files([f"{out}/sensing.json"]), NS(dataset_dir=ds), NS(), [f"{out}/regress.log"])
 
 if mode == "main":
+    from selfsense.parallel import can_fork
+    print(f"can fork: {can_fork()}", flush=True)
     calibrate()
 else:  # a first worker sets the limit and stays alive while a second worker runs the calibration
     first_done, calibrated = threading.Event(), threading.Event()
@@ -79,7 +82,8 @@ def test_calibration_is_bit_identical_across_blas_thread_settings_and_worker_thr
     cfg = {k: cfg.get(k, {}) for k in ("calibration", "estimation")}
     script = tmp_path / "job.py"
     script.write_text(_JOB)
-    runs = {"main_1thread": ("main", "1", "1"), "worker_2threads": ("worker", "2", "2")}
+    runs = {"main_1thread": ("main", "1", "1"), "worker_2threads": ("worker", "2", "2"),
+            "main_2forks": ("main", "1", "2")}
     procs = {}
     for name, (mode, n, cv_threads) in runs.items():
         (tmp_path / name).mkdir()
@@ -89,11 +93,15 @@ def test_calibration_is_bit_identical_across_blas_thread_settings_and_worker_thr
             [sys.executable, str(script), str(sig), json.dumps(cfg), str(tmp_path / name), mode, str(SAMPLE),
              cv_threads],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    outs = {}
     for name, p in procs.items():
-        out, _ = p.communicate(timeout=600)
-        assert p.returncode == 0, f"{name}:\n{out[-3000:]}"
-    a, b = (_digest(tmp_path / name) for name in runs)
+        outs[name], _ = p.communicate(timeout=600)
+        assert p.returncode == 0, f"{name}:\n{outs[name][-3000:]}"
+    a, b, c = (_digest(tmp_path / name) for name in runs)
     assert a == b, [n for n in a if a[n] != b[n]]
+    # a job in a process of its own (the calibrate_hysteresis script) cross-validates in forked workers: same bits
+    assert "can fork: True" in outs["main_2forks"]
+    assert a == c, [n for n in a if a[n] != c[n]]
     # the duhem candidates, where one-vs-two-thread rounding showed first, were scored in both runs
     kinds = [r["kind"] for r in json.loads((tmp_path / "main_1thread" / "hysteresis.json").read_text())
              ["fit_report"]["hysteresis"]["selection"]]
