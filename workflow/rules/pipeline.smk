@@ -56,6 +56,8 @@ rule calibrate_hysteresis:
         res("{dataset}", "logs", "calibrate_hysteresis.log"),
     benchmark:
         res("{dataset}", "benchmarks", "calibrate_hysteresis.tsv")
+    conda:
+        "../envs/selfsense.yaml"
     # nothing else of the dataset can run beside it (every later job needs the model): the H(q) selection
     # cross-validates two candidates at a time in forked workers (selfsense.parallel.fork_map; the fits hold the
     # GIL, so threads of the Snakemake process would take turns), the same bits for any number of threads;
@@ -64,8 +66,6 @@ rule calibrate_hysteresis:
     resources:
         mem_mb=4000,
         runtime=30,
-    conda:
-        "../envs/selfsense.yaml"
     params:
         dataset_dir=dataset_dir,
         config=SENSING_CONFIG,
