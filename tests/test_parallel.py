@@ -1,29 +1,79 @@
 """selfsense.parallel.fork_map: the items' results in their order, computed in forked processes where that is safe,
-in threads or in turn where it is not; an exception reaches the caller."""
+in threads or in turn where it is not; an exception reaches the caller.
+
+The forking cases run in a fresh interpreter (:func:`_fresh`): a pytest-xdist worker runs an I/O thread beside the
+tests, where :func:`~selfsense.parallel.can_fork` rightly refuses to fork."""
 import os
+import subprocess
+import sys
+import textwrap
 import threading
+from pathlib import Path
 
 import pytest
 
 from selfsense.parallel import can_fork, fork_map
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _fresh(code: str) -> str:
+    """Run ``code`` in a new single-threaded interpreter (selfsense from this checkout); its stdout."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    return out.stdout
+
+
+def test_results_in_order_from_forked_workers_that_inherit_unpicklable_state():
+    out = _fresh("""
+        import os
+        from selfsense.parallel import can_fork, fork_map
+        assert can_fork()
+        big = {"data": list(range(1000))}
+        pid_sq = lambda x: (os.getpid(), x * x, sum(big["data"][:x]))   # a closure: inherited, never pickled
+        res = fork_map(pid_sq, range(7), 2)
+        assert [r[1] for r in res] == [x * x for x in range(7)]
+        assert [r[2] for r in res] == [sum(range(x)) for x in range(7)]
+        assert {r[0] for r in res} - {os.getpid()}, "the work did not run in child processes"
+        print("ok")
+    """)
+    assert out.strip() == "ok"
+
+
+def test_a_worker_that_maps_again_runs_its_items_itself():
+    out = _fresh("""
+        import os
+        from selfsense.parallel import fork_map
+        inner = lambda x: (os.getpid(), x * x)
+        outer = lambda x: fork_map(inner, [x, x + 1], 2)
+        res = fork_map(outer, [1, 5], 2)
+        assert [[r for _, r in o] for o in res] == [[1, 4], [25, 36]]
+        # in the worker itself: a pool's worker may not have children
+        assert all(len({p for p, _ in o}) == 1 and o[0][0] != os.getpid() for o in res)
+        print("ok")
+    """)
+    assert out.strip() == "ok"
+
+
+def test_an_exception_in_a_forked_worker_reaches_the_caller():
+    out = _fresh("""
+        from selfsense.parallel import fork_map
+        def fail(x):
+            if x == 2:
+                raise ValueError(f"item {x} is bad")
+            return x
+        try:
+            fork_map(fail, range(4), 2)
+        except ValueError as e:
+            print(e)
+    """)
+    assert out.strip() == "item 2 is bad"
+
 
 def _pid_and_square(x):
     return os.getpid(), x * x
-
-
-def test_results_in_order_from_forked_workers():
-    if not can_fork():
-        pytest.skip("no fork here (platform, or another thread is running)")
-    out = fork_map(_pid_and_square, range(7), 2)
-    assert [r for _, r in out] == [x * x for x in range(7)]
-    assert {p for p, _ in out} - {os.getpid()}   # the work ran in child processes
-
-
-def test_inherited_state_is_used_not_pickled():
-    big = {"data": list(range(1000))}
-    local = lambda i: sum(big["data"][:i])  # noqa: E731 - a closure: unpicklable, inherited by the fork
-    assert fork_map(local, [0, 10, 1000], 2) == [0, 45, sum(range(1000))]
 
 
 def test_one_worker_or_one_item_runs_here():
@@ -40,29 +90,9 @@ def test_with_another_thread_running_it_does_not_fork():
         assert {p for p, _ in fork_map(_pid_and_square, range(4), 2)} == {os.getpid()}
         names = fork_map(lambda _: threading.current_thread().name, range(4), 2, threads_fallback=True)
         assert all(n.startswith("selfsense") for n in names)
+        with pytest.raises(ValueError, match="item 2"):
+            fork_map(lambda x: (_ for _ in ()).throw(ValueError("item 2")) if x == 2 else x, range(4), 2,
+                     threads_fallback=True)
     finally:
         stop.set()
         t.join()
-
-
-def _fail(x):
-    if x == 2:
-        raise ValueError(f"item {x} is bad")
-    return x
-
-
-def test_an_exception_in_a_worker_reaches_the_caller():
-    with pytest.raises(ValueError, match="item 2 is bad"):
-        fork_map(_fail, range(4), 2)
-
-
-def _nested(x):
-    return fork_map(_pid_and_square, [x, x + 1], 2)
-
-
-def test_a_worker_that_maps_again_runs_its_items_itself():
-    if not can_fork():
-        pytest.skip("no fork here")
-    out = fork_map(_nested, [1, 5], 2)
-    assert [[r for _, r in o] for o in out] == [[1, 4], [25, 36]]
-    assert all(len({p for p, _ in o}) == 1 for o in out)   # in the worker itself: a pool's worker has no children

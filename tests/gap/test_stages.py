@@ -194,28 +194,41 @@ def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
     assert ch["members"]["leakage"]["contribution"] == pytest.approx(e["shrink"], abs=1e-12)
 
 
-def test_recalibrations_in_forked_workers_give_the_same_numbers(thr, monkeypatch):
-    """The counterfactual's recalibrations, fitted two at a time in forked workers (the pipeline's gap rule with
-    ``threads: 2``), give the very numbers of the one-at-a-time run: every table, shrink, interval and Shapley
-    share, with the member contributions' refits in the same pool."""
-    import json
+def test_recalibrations_in_forked_workers_give_the_same_numbers():
+    """The counterfactual's recalibrations, fitted two at a time in forked workers (``selfsense gap diagnose --jobs
+    2``), give the very numbers of the one-at-a-time run: every table, shrink, interval and Shapley share. In a fresh
+    interpreter: a pytest-xdist worker runs an I/O thread, beside which nothing forks."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+    from pathlib import Path
 
-    import selfsense.gap.counterfactual as cfm
-    from selfsense.gap.blindsim import simulate_family_case
-    from selfsense.gap.standin import FastSensingEstimator
-    from selfsense.parallel import can_fork
-
-    if not can_fork():
-        pytest.skip("no fork here")
-    calls = []
-    real = cfm.fork_map
-    monkeypatch.setattr(cfm, "fork_map", lambda fn, items, w: calls.append(len(items)) or real(fn, items, w))
-    tr, me, rig = simulate_family_case("gpi", 3, {"slow.absorption": 10.0, "slow.leakage": 10.0}, 3)
-    v = S.diagnose_stages(tr, me, rig, thr)
-    mk = lambda r: FastSensingEstimator(rig=r)  # noqa: E731
-    one = cfm.counterfactual(tr, me, rig, v, mk, n_boot=20, seed=0, workers=1)
-    two = cfm.counterfactual(tr, me, rig, v, mk, n_boot=20, seed=0, workers=2)
-    assert calls and calls[0] >= 4   # the subsets' recalibrations went to the pool
-    t1, t2 = one.pop("_tables"), two.pop("_tables")
-    assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
-    assert t1 == t2
+    code = textwrap.dedent("""
+        import json
+        import selfsense.gap.counterfactual as cfm
+        import selfsense.gap.stages as S
+        from selfsense.gap.blind import load_stage_thresholds
+        from selfsense.gap.blindsim import simulate_family_case
+        from selfsense.gap.standin import FastSensingEstimator
+        from selfsense.parallel import can_fork
+        assert can_fork()
+        calls = []
+        real = cfm.fork_map
+        cfm.fork_map = lambda fn, items, w: calls.append(len(items)) or real(fn, items, w)
+        tr, me, rig = simulate_family_case("gpi", 3, {"slow.absorption": 10.0, "slow.leakage": 10.0}, 3)
+        v = S.diagnose_stages(tr, me, rig, load_stage_thresholds())
+        mk = lambda r: FastSensingEstimator(rig=r)
+        one = cfm.counterfactual(tr, me, rig, v, mk, n_boot=20, seed=0, workers=1)
+        two = cfm.counterfactual(tr, me, rig, v, mk, n_boot=20, seed=0, workers=2)
+        assert calls and calls[0] >= 4, calls   # the subsets' recalibrations went to the pool
+        t1, t2 = one.pop("_tables"), two.pop("_tables")
+        assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
+        assert t1 == t2
+        print("ok", calls[0])
+    """)
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root / "src"), os.environ.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    assert out.stdout.startswith("ok")
