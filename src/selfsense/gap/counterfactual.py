@@ -223,8 +223,9 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     corrections of S applied.
 
     ``workers``: recalibrations run this many at a time (:func:`selfsense.parallel.fork_map`; each is the same
-    deterministic fit, so the result has the same bits for any count). ``also_members``: forced-member sets of the uncorrected chain to recalibrate
-    in the same pool for a later :func:`chain_contributions` (their tables join ``_tables``)."""
+    deterministic fit, so the result has the same bits for any count). ``also_members``: forced-member sets of the
+    uncorrected chain to recalibrate in the same pool for a later :func:`chain_contributions` (their tables join
+    ``_tables``)."""
     from itertools import combinations
 
     from .stats import shapley_exact
@@ -293,8 +294,9 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         return tabs[key]
 
     def planned():
-        """Every (S, bare, mem) this function scores below, in order (the recalibrations they need are fitted in
-        one pool first)."""
+        """Every (S, bare, mem) this function scores below, in order: with ``workers > 1`` their recalibrations and
+        tables are computed in one pool first. Only a prefetch: a table missing here is computed where it is asked
+        for, so a change of the scoring below that is not mirrored here costs time, never a different number."""
         yield frozenset(), False, None
         for mem in also_members:
             yield frozenset(), True, dict(mem)
@@ -316,7 +318,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         for S, bare, mem in planned():
             mem = members_of(S, bare) if mem is None else mem
             k = refit_key(S, mem)
-            if k is not None:
+            if k is not None and (S, mem) not in groups.get(k, []):
                 groups.setdefault(k, []).append((S, mem))
         if len(groups) > 1:
             def unit(k):
