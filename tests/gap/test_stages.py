@@ -232,3 +232,24 @@ def test_recalibrations_in_forked_workers_give_the_same_numbers():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
     assert out.stdout.startswith("ok")
+
+
+def test_the_trials_position_in_the_campaign_is_their_trials_csv_row_not_the_order_they_are_passed_in(thr):
+    """The temperature member's axis is a trial's time in the campaign, its trials.csv row (the measurement order):
+    the same trials passed in another order give every trial the same position and the same verdict. (Before, the
+    position was the order of the dict: the bundled dataset's trials passed sorted by name lost its temperature.)"""
+    import json
+
+    from selfsense.gap.blindsim import simulate_family_case
+
+    tr, me, rig = simulate_family_case("gpi", 5, {"slow.temperature": 10.0}, 5)
+    rev = dict(reversed(list(tr.items())))
+    assert list(rev) != list(tr)
+    pos = {s.name: s.order for s in S.stage_signals(tr, me, rig)}
+    assert pos == {s.name: s.order for s in S.stage_signals(rev, me, rig)}
+    assert [pos[t] for t in me.index if t in pos] == sorted(pos.values())   # increasing down trials.csv
+    a, b = S.diagnose_stages(tr, me, rig, thr), S.diagnose_stages(rev, me, rig, thr)
+    strip = lambda v: json.dumps({k: x for k, x in v.items() if not k.startswith("_")}, sort_keys=True,  # noqa: E731
+                                 default=str)
+    assert strip(a) == strip(b)
+    assert "slow.temperature" in [e["effect"] for e in a["effects"]]

@@ -85,10 +85,15 @@ def _release(relay: np.ndarray) -> int:
 
 def stage_signals(trials: dict, meta: pd.DataFrame, rig) -> list[StageSignals]:
     """Per-trial signals from prepared trials (``selfsense.signals.prepare_trial``: t, V, q, V_c, V_s, dx_ref,
-    f_ref, relay) and trials.csv meta; shunt current i = V_s / R."""
+    f_ref, relay) and trials.csv meta; shunt current i = V_s / R. The trials are taken in the order of ``meta``'s
+    rows (trials.csv: the measurement order, docs/data_format.md), whatever the order of ``trials``: a trial's
+    position there is its time in the campaign (``order``, the temperature member's axis); trials without a meta row
+    follow, in their own order."""
     R = float(getattr(rig, "shunt_resistance_ohm", None) or rig["shunt_resistance_ohm"])
     out = []
-    for k, (name, df) in enumerate(trials.items()):
+    names = [t for t in meta.index if t in trials] + [t for t in trials if t not in meta.index]
+    for k, name in enumerate(names):
+        df = trials[name]
         m = meta.loc[name]
         a = _release(df["relay"].to_numpy())
         on = np.flatnonzero(df["relay"].to_numpy(float)[:a] >= 0.5)
