@@ -583,13 +583,12 @@ def by_trial(paths) -> dict[str, str]:
 
 
 #: the pipeline rules that run inside the Snakemake process (``run:``), by rule name: (input, output, params,
-#: wildcards) -> stage call. Rules with plotting (figures, gap diagnostic) and the heavier mode comparison keep
-#: ``script:`` and a process of their own.
+#: wildcards) -> stage call. Rules with plotting (figures, gap diagnostic), the H(q) calibration (its workers are
+#: forked from its process) and the heavier mode comparison keep ``script:`` and a process of their own.
 _JOBS = {
     "validate_dataset": lambda i, o, p, w: validate(p.dataset_dir, o[0], p.on_bad_trial,
                                                     int(getattr(p, "max_trial_samples", MAX_TRIAL_SAMPLES))),
     "ingest": lambda i, o, p, w: ingest(p.dataset_dir, w.trial, o[0], i.validation),
-    "calibrate_hysteresis": lambda i, o, p, w: calibrate(p.dataset_dir, by_trial(i.signals), p.config, o[0]),
     "regress_coefficients": lambda i, o, p, w: regress(p.dataset_dir, by_trial(i.signals), i.hysteresis, o[0]),
     "estimate": lambda i, o, p, w: estimate(p.dataset_dir, i.signals, i.model, o.estimate, full_out=o.internals),
     "score": lambda i, o, p, w: score(p.dataset_dir, by_trial(i.estimates), p.out_dir),
@@ -609,16 +608,12 @@ def _one_blas_thread() -> None:
     single_thread_blas()
 
 
-def run_job(name: str, input, output, params, wildcards, log, threads: int = 1) -> None:
+def run_job(name: str, input, output, params, wildcards, log) -> None:
     """Body of the workflow's ``run:`` rules (workflow/rules/pipeline.smk): the stage of rule ``name`` inside
-    :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster). ``threads``:
-    the rule's ``threads``, the candidates the H(q) selection may cross-validate at a time
-    (:func:`selfsense.hysteresis.models.select.cv_workers`; the same bits for every count)."""
-    from selfsense.hysteresis.models.select import cv_workers
-
+    :class:`logged`, in a thread of the Snakemake process (or in a process of its own on a cluster)."""
     _one_blas_thread()
     try:
-        with logged(log[0], exit_on_bad_input=False), cv_workers(threads):
+        with logged(log[0], exit_on_bad_input=False):
             _JOBS[name](input, output, params, wildcards)
     except (ValueError, OSError, KeyError) as exc:  # bad input: its message, the traceback stays in the log
         raise BadInput(f"{type(exc).__name__}: {exc}") from None

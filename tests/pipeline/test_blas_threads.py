@@ -39,9 +39,10 @@ class Files(list):
 signals = [f"{sig}/cal_free.parquet", f"{sig}/cal_blocked.parquet"]
 
 def calibrate():
-    stages.run_job("calibrate_hysteresis", Files(signals, signals=signals),
-                   Files([f"{out}/hysteresis.json", f"{out}/h_selection.csv"]), NS(dataset_dir=ds, config=cfg), NS(),
-                   [f"{out}/calibrate.log"], threads=threads)
+    # as the calibrate_hysteresis script runs it: the rule's threads are the candidates cross-validated at a time
+    from selfsense.hysteresis.models.select import cv_workers
+    with stages.logged(f"{out}/calibrate.log"), cv_workers(threads):
+        stages.calibrate(ds, stages.by_trial(signals), cfg, f"{out}/hysteresis.json")
     stages.run_job("regress_coefficients", Files(signals, signals=signals, hysteresis=f"{out}/hysteresis.json"),
                    Files([f"{out}/sensing.json"]), NS(dataset_dir=ds), NS(), [f"{out}/regress.log"])
 
