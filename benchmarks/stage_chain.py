@@ -81,7 +81,8 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "leakage_true_ns": float(sc["effects"].get("leakage", 0.0)) if preset != "clean" else 0.0,
             "leakage_ns": float(est.leakage_s_ * 1e9),
             "leakage_source": d.get("source", "calibration" if d.get("applied") else "none"),
-            "offset_drift": bool(est.offset_drift_), "members": dict(members or {})}
+            "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
+            "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False))}
 
 
 def summary_devices(recs: list[dict]) -> str:

@@ -30,6 +30,24 @@ def test_leakage_from_the_holds_at_its_threshold():
     assert not E.leakage_supported_by_holds(False, 0.5, 1.0)
 
 
+def test_holds_measure_leakage_only_with_a_clear_positive_slope_over_levels_and_trials():
+    ev = {"g_s": 4.6e-9, "z": 7.6, "n_levels": 3, "n_trials": 8, "supported": False}
+    assert E.leakage_measured_by_holds(ev) == pytest.approx(4.6e-9)    # measured although not supported
+    assert E.leakage_measured_by_holds(dict(ev, z=3.9)) is None           # z below Z_SUPPORT
+    assert E.leakage_measured_by_holds(dict(ev, g_s=-4.6e-9, z=-7.6)) is None
+    assert E.leakage_measured_by_holds(dict(ev, n_levels=1)) is None      # one level: no slope over V
+    assert E.leakage_measured_by_holds(dict(ev, n_trials=1)) is None
+    assert E.leakage_measured_by_holds({}) is None
+
+
+def test_calibration_leakage_contradicted_by_the_holds_above_one_and_a_half_times():
+    g = 4e-9
+    assert E.leakage_contradicted_by_holds(1.5 * g * (1 + EPS), g)
+    assert not E.leakage_contradicted_by_holds(1.5 * g * (1 - EPS), g)
+    assert not E.leakage_contradicted_by_holds(0.2 * g, g)      # below the holds' value: a relaxation inflates theirs
+    assert not E.leakage_contradicted_by_holds(10 * g, None)    # no measurement, no contradiction
+
+
 def test_offset_drift_at_its_threshold():
     assert E.offset_drift_supported(0.99 - EPS, 1.0)
     assert not E.offset_drift_supported(0.99 + EPS, 1.0)
@@ -56,13 +74,17 @@ def test_rest_offset_gate_is_the_one_the_estimator_applies():
 
 
 @pytest.mark.parametrize("const,pct", [("LEAK_HOLD_MAX_CV_RATIO", "2"), ("OFFSET_DRIFT_MIN_GAIN", "1"),
-                                       ("REST_OFFSET_MIN_GAIN", "2")])
+                                       ("REST_OFFSET_MIN_GAIN", "2"), ("LEAK_HOLD_CONTRADICTION", "150")])
 def test_docs_state_the_thresholds_the_code_uses(const, pct):
     value = getattr(E, const)
-    assert round(abs(value - 1.0) * 100 if value > 0.5 else value * 100, 6) == float(pct)
+    if const == "LEAK_HOLD_CONTRADICTION":
+        assert round(value * 100, 6) == float(pct)
+    else:
+        assert round(abs(value - 1.0) * 100 if value > 0.5 else value * 100, 6) == float(pct)
     text = (ROOT / "docs" / "method.md").read_text()
     phrase = {"LEAK_HOLD_MAX_CV_RATIO": r"blocked-CV error grows by at most (\d+) % with it",
               "OFFSET_DRIFT_MIN_GAIN": r"lower the blocked-CV error by more than (\d+) %",
-              "REST_OFFSET_MIN_GAIN": r"calibration trial\) by more than (\d+) %"}[const]
+              "REST_OFFSET_MIN_GAIN": r"calibration trial\) by more than (\d+) %",
+              "LEAK_HOLD_CONTRADICTION": r"more than (\d+) % of the conductance the holds"}[const]
     m = re.search(phrase, text.replace("\n", " ").replace("  ", " "))
     assert m and m.group(1) == pct, (const, m.group(0) if m else None)

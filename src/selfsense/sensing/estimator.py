@@ -330,6 +330,9 @@ LEAK_CAL_MAX_CV_RATIO = 1.0
 LEAK_FOLD_AGREEMENT = 0.5
 #: leakage from the holds of every trial: the calibration rows' blocked-CV error may grow by at most 2 % with it
 LEAK_HOLD_MAX_CV_RATIO = 1.02
+#: leakage from the calibration rows is contradicted by the holds of every trial when it exceeds the conductance the
+#: holds measure (z >= Z_SUPPORT at >= 2 voltage levels) by more than this factor
+LEAK_HOLD_CONTRADICTION = 1.5
 #: offset-drift compensation: the columns must lower the calibration rows' blocked-CV error by more than 1 %
 OFFSET_DRIFT_MIN_GAIN = 0.01
 #: rest offset: the constant must lower the displacement rows' blocked-CV error by more than 2 %
@@ -347,6 +350,26 @@ def leakage_supported_by_holds(hold_supported: bool, cv_with: float, cv_without:
     """Leakage estimated from the holds of every trial is used when the holds support it and the calibration rows'
     blocked-CV error grows by at most 2 % with it."""
     return bool(hold_supported and cv_with <= LEAK_HOLD_MAX_CV_RATIO * cv_without)
+
+
+def leakage_measured_by_holds(ev: Mapping) -> float | None:
+    """The conductance [S] the holds of every trial measure (:func:`selfsense.chain.charge.hold_evidence`), or
+    None: g > 0 with z >= ``Z_SUPPORT`` over holds at >= 2 voltage levels in >= 2 trials. A measurement, not support:
+    a slow relaxation over holds short against it can still move it (that is what ``supported`` checks), so it serves
+    as a bound on the calibration rows' estimate, never as the conductance of a device on its own."""
+    from selfsense.chain.charge import Z_SUPPORT
+
+    g, z = float(ev.get("g_s") or 0.0), float(ev.get("z") or 0.0)
+    ok = g > 0 and z >= Z_SUPPORT and int(ev.get("n_levels") or 0) >= 2 and int(ev.get("n_trials") or 0) >= 2
+    return g if ok else None
+
+
+def leakage_contradicted_by_holds(g_cal: float, g_holds: float | None) -> bool:
+    """The calibration rows' leakage ``g_cal`` [S] is contradicted when the holds of every trial measure a conductance
+    ``g_holds`` and ``g_cal`` exceeds it by more than ``LEAK_HOLD_CONTRADICTION`` (1.5x): the calibration rows have
+    then taken up more than leakage (a creep of the mechanism, or an H the reference model misfits, drives the
+    search's g up; measured in docs/method.md)."""
+    return bool(g_holds is not None and g_cal > LEAK_HOLD_CONTRADICTION * g_holds)
 
 
 def offset_drift_supported(cv_with: float, cv_without: float) -> bool:
@@ -613,7 +636,10 @@ class SelfSensingEstimator:
         it (blocked-CV error not higher, leave-one-block-out estimates within 50 %) or when the reference-free holds
         of every trial do (:func:`selfsense.chain.charge.hold_evidence`, then with the hold-estimated g, provided the
         calibration rows' blocked-CV error grows by at most 2 %; when both support it, the estimate with the lower
-        calibration error); the offset-drift columns when they lower that error by more than 1 %. ``members``
+        calibration error). A calibration g more than 1.5x the conductance the holds measure (z >= 4 at >= 2 levels, even
+        where a slow relaxation keeps the holds from supporting leakage on their own) is contradicted: the holds' g
+        takes its place if the calibration rows' blocked-CV error is not higher with it than without leakage, else
+        leakage is not applied. The offset-drift columns are applied when they lower that error by more than 1 %. ``members``
         forces either on or off. Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
         """
         from scipy.optimize import minimize_scalar
@@ -668,6 +694,23 @@ class SelfSensingEstimator:
         # supported by the calibration rows when it does not worsen their blocked CV and the leave-one-block-out
         # estimates agree within 50 %
         cal_ok = leakage_supported_by_calibration(g_cal, g_folds, best_cal, base)
+        # the calibration rows' g must not exceed what the holds of every trial measure by more than 1.5x; where it
+        # does, the holds' conductance takes its place, provided the calibration rows' blocked CV is not higher with
+        # it than without leakage
+        g_meas = leakage_measured_by_holds(ev)
+        info["leakage_s_holds_measured"] = g_meas
+        cal_label = "calibration"
+        if (cal_ok or modes["leakage"] == "on") and leakage_contradicted_by_holds(g_cal, g_meas):
+            cv_meas = cv(g_meas, True)
+            info.update({"leakage_calibration_contradicted": True, "cv_rms_v_with_holds_measured_g": cv_meas})
+            notes.append(f"the calibration rows' g ({g_cal * 1e9:.3g} nS) exceeds the {g_meas * 1e9:.3g} nS the holds "
+                         f"of all trials measure by more than {LEAK_HOLD_CONTRADICTION:g}x: "
+                         + ("the holds' g takes its place" if cv_meas <= LEAK_CAL_MAX_CV_RATIO * base else
+                            "not applied (the calibration rows' blocked-CV error is higher with the holds' g)"))
+            if cv_meas <= LEAK_CAL_MAX_CV_RATIO * base or modes["leakage"] == "on":
+                g_cal, best_cal, cal_label = g_meas, cv_meas, "holds' measurement"
+            else:
+                cal_ok = False
         # supported by the holds of every trial (reference-free, selfsense.chain.charge.hold_evidence) when the
         # calibration rows are not made worse by more than 2 % with the hold-estimated conductance
         g_hold = float(ev.get("g_s") or 0.0)
@@ -682,7 +725,7 @@ class SelfSensingEstimator:
             cands = [(best_hold, 0, g_hold, "holds")] if (hold_ok or (modes["leakage"] == "on" and ev.get("supported"))) \
                 else []
             if cal_ok or modes["leakage"] == "on":
-                cands.append((best_cal, 1, g_cal, "calibration"))
+                cands.append((best_cal, 1, g_cal, cal_label))
             best, _, g, source = min(cands)
         else:
             why = ["calibration rows: blocked-CV error not lower with g, or the leave-one-block-out estimates of g "
