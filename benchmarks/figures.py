@@ -35,6 +35,7 @@ DATES = {
     "whole_device": "2026-11-26",
     "whole_device_hold_rows": "2026-11-26",
     "whole_device_duhem_linear": "2026-11-26",
+    "whole_device_relay_fix": "2026-11-27",
     "hold_rows": "2026-11-26",
     "gap_stages": "2026-11-24",
     "gap_stages_16180": "2026-11-26",
@@ -61,6 +62,8 @@ COMMANDS = {
                              "--out benchmarks/cross_device/first_contact_rate_kp/{protocol}",
     "whole_device": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                     "--out benchmarks/cross_device/whole_device/thesis",
+    "whole_device_relay_fix": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
+                              "--out benchmarks/cross_device/whole_device/thesis_relay_fix",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                               "--out benchmarks/cross_device/whole_device/thesis_hold_rows",
     # the devices rescored after the Duhem model got its own linear term, into one folder: clean Bouc-Wen 10 devices,
@@ -204,6 +207,7 @@ def _device_table_figures(src: str, what: str, command: str, date: str,
 
 WHOLE_HOLD = "benchmarks/cross_device/whole_device/thesis_hold_rows"
 WHOLE_DUHEM = "benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear"
+WHOLE_RELAY = "benchmarks/cross_device/whole_device/thesis_relay_fix"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -306,7 +310,14 @@ def cross_device_figures() -> list[Fig]:
                                     COMMANDS["whole_device_hold_rows"], DATES["whole_device_hold_rows"],
                                     superseded=superseded)
             # the clean devices rescored after the Duhem model got its own linear term
-            + duhem_linear_figures(groups))
+            + duhem_linear_figures(groups)
+            # seeds 0-4 of all five families and both presets with the current code: the simulator's relay fix
+            # (docs/method.md) changes the records of the devices whose relay segment carried the residual current
+            + (_device_table_figures(f"{WHOLE_RELAY}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, current code (simulator relay "
+                                     "fix, holds' bound on the calibration leakage), seeds 0-4",
+                                     COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"])
+               if (ROOT / WHOLE_RELAY / "cross_device.csv").exists() else []))
 
 
 def hold_rows_figures() -> list[Fig]:
