@@ -54,9 +54,13 @@ def _margin(rec) -> float:
 
 def test_committed_cases_rerun_on_this_machine(records):
     """Four committed cases with clear decisions (every member at least 20 % away from its threshold, one per
-    family) rerun here: the same effects named, stage residuals within 1e-6 relative."""
+    family) rerun here: the same effects named, stage residuals within 1e-6 relative. Cases with a remanent state
+    (preload) are not rerun: the campaign was simulated before the simulator's relay fix (2026-11-27), and their
+    relay segment then carried the kernel's residual current, which the holds stage read as the state's relaxation."""
     picked = {}
     for r in records[:200]:
+        if "preload" in json.dumps(r["manifest"]["effects"]):
+            continue
         if r["family"] not in picked and r["manifest"]["effects"] and _margin(r) > 0.2:
             picked[r["family"]] = r
     assert len(picked) == 4

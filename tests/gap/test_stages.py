@@ -81,11 +81,15 @@ def test_creep_and_absorption_told_apart_by_the_sign(effect, expected, thr):
 
 
 def test_preload_vs_offset_drift_head_to_head(thr):
-    """A remanent state relaxing through the relay short makes the shunt current irregular there; an in-amp offset
-    drift does not. Both bias the charge like an offset: the holds stage decides which."""
+    """An in-amp offset drift biases the charge like an offset and is named as such, never as a remanent state; a
+    remanent state is never taken for an offset drift. (Until the simulator's relay fix of 2026-11-27 a remanent state
+    relaxing through the relay short also showed as an irregular shunt current there, the holds stage's
+    ``hysteresis.preload@holds``: that current was the kernel's stopping residual booked on the shunt. The relaxation
+    flows in the 0.1 ohm relay, and the shunt sees 1e-4 of it; docs/gap.md.)"""
     d, _ = _diag("jiles_atherton", {"hysteresis.preload": 1.0}, thr)
-    assert d["top"] == "hysteresis.preload"
     assert "slow.offset_drift" not in [e["effect"] for e in d["effects"]]
+    # the short is as quiet as the channel after the release: nothing relaxes through the shunt
+    assert d["stages"]["holds"]["gains_alone"]["hysteresis.preload@holds"] < 0.0
     d2, _ = _diag("jiles_atherton", {"slow.offset_drift": 3.0}, thr)
     assert d2["top"] == "slow.offset_drift"
     assert "hysteresis.preload" not in [e["effect"] for e in d2["effects"]]
