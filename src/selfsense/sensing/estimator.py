@@ -703,11 +703,12 @@ class SelfSensingEstimator:
         if (cal_ok or modes["leakage"] == "on") and leakage_contradicted_by_holds(g_cal, g_meas):
             cv_meas = cv(g_meas, True)
             info.update({"leakage_calibration_contradicted": True, "cv_rms_v_with_holds_measured_g": cv_meas})
+            takes = cv_meas <= LEAK_CAL_MAX_CV_RATIO * base or modes["leakage"] == "on"
             notes.append(f"the calibration rows' g ({g_cal * 1e9:.3g} nS) exceeds the {g_meas * 1e9:.3g} nS the holds "
                          f"of all trials measure by more than {LEAK_HOLD_CONTRADICTION:g}x: "
-                         + ("the holds' g takes its place" if cv_meas <= LEAK_CAL_MAX_CV_RATIO * base else
-                            "not applied (the calibration rows' blocked-CV error is higher with the holds' g)"))
-            if cv_meas <= LEAK_CAL_MAX_CV_RATIO * base or modes["leakage"] == "on":
+                         + ("the holds' g takes its place" if takes else
+                            "the calibration rows' g is not used (their blocked-CV error is higher with the holds' g)"))
+            if takes:
                 g_cal, best_cal, cal_label = g_meas, cv_meas, "holds' measurement"
             else:
                 cal_ok = False
@@ -728,8 +729,9 @@ class SelfSensingEstimator:
                 cands.append((best_cal, 1, g_cal, cal_label))
             best, _, g, source = min(cands)
         else:
-            why = ["calibration rows: blocked-CV error not lower with g, or the leave-one-block-out estimates of g "
-                   "disagree by > 50 %"]
+            why = ["calibration rows: contradicted by the holds' measurement" if info.get(
+                "leakage_calibration_contradicted") else "calibration rows: blocked-CV error not lower with g, or the "
+                   "leave-one-block-out estimates of g disagree by > 50 %"]
             if ev.get("note"):
                 why.append("holds of all trials: " + ev["note"])
             if ev.get("supported") and not hold_ok:
