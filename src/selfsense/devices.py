@@ -35,9 +35,11 @@ PROTOCOLS = ("thesis", "three_trial")
 
 
 def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
-               protocol: str = "three_trial", randomise: str = "hysteresis") -> dict:
+               protocol: str = "three_trial", randomise: str = "hysteresis",
+               device_overrides: Mapping[str, Any] | None = None) -> dict:
     """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials; the
-    mixed-drive validation trials also on their own)."""
+    mixed-drive validation trials also on their own). ``device_overrides``: device quantities set after the draw
+    (e.g. ``{"adc_bits": 18}``: the same device, drive and noise with a finer ADC), recorded as ``override_<name>``."""
     from selfsense import io as sio
     from selfsense.report import tables
     from selfsense.sensing import SelfSensingEstimator
@@ -50,12 +52,18 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
     cfg = dict(config or _default_pipeline_config())
     sc = draw_device(family, seed, preset, randomise=randomise)
+    unknown = sorted(set(device_overrides or {}) - set(sc["device"]))
+    if unknown:
+        raise ValueError(f"device_overrides: unknown device quantities {unknown}; expected some of "
+                         f"{sorted(sc['device'])}")
+    sc["device"].update(dict(device_overrides or {}))
     if protocol == "thesis":
         sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
                            "randomise": randomise, **{f"device_{k}": v for k, v in sc.get("randomise", {}).items()},
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
-                           "preload": sc["effects"].get("preload", 0.0)}
+                           "preload": sc["effects"].get("preload", 0.0),
+                           **{f"override_{k}": v for k, v in (device_overrides or {}).items()}}
     with tempfile.TemporaryDirectory(prefix="selfsense-device-") as tmp:
         ds = Path(tmp) / sc["name"]
         simulate_dataset(sc, out_dir=ds, truth_dir=Path(tmp) / (sc["name"] + ".truth"), contributions=False)
@@ -94,6 +102,9 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "h_selected": str(hrep.get("selected", hrep.get("h_model", ""))),
         "h_fit_rms_v": float(hrep.get("rms_v", float("nan"))),
         "rest_offset": bool(est.fit_report_.get("rest_offset", {}).get("applied", False)),
+        "charge_resolution_dx_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_dx_pct", 0.0)),
+        "charge_resolution_f_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_f_pct", 0.0)),
+        "charge_resolution_h_v": float(est.fit_report_.get("charge_resolution", {}).get("calibration_h_target_v", 0.0)),
         "regression": str(est.fit_report_.get("regression_form", "")),
         "warnings": list(est.fit_report_.get("warnings", [])),
     })
@@ -164,15 +175,15 @@ def _config_from(path: str | None) -> dict:
 
 
 def _job(args):
-    family, preset, seed, cfg, out, protocol, randomise = args
-    rec = run_device(family, preset, seed, cfg, protocol, randomise)
+    family, preset, seed, cfg, out, protocol, randomise, overrides = args
+    rec = run_device(family, preset, seed, cfg, protocol, randomise, overrides)
     write_record(rec, out)
     return rec
 
 
 def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
           first_seed: int = 0, progress: bool = True, protocol: str = "three_trial",
-          randomise: str = "hysteresis") -> pd.DataFrame:
+          randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None) -> pd.DataFrame:
     """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
     file per device under ``out_dir/records`` (existing records are reused: resumable), then write
     ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``."""
@@ -189,13 +200,17 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
                 p = rec_dir / f"{fam}_{pre}_{seed}.json"
                 if p.exists():
                     rec = json.loads(p.read_text())
+                    over = {k[len("override_"):]: v for k, v in rec.items() if k.startswith("override_")}
+                    if over != dict(device_overrides or {}):
+                        raise ValueError(f"{p}: a record with device overrides {over}; this run asks for "
+                                         f"{dict(device_overrides or {})}: use another --out folder")
                     if (rec.get("protocol", "three_trial"), rec.get("randomise", "hysteresis")) != (protocol, randomise):
                         raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}, "
                                          f"randomisation {rec.get('randomise', 'hysteresis')!r}; this run asks for "
                                          f"{protocol!r}, {randomise!r}: use another --out folder")
                     recs.append(rec)
                 else:
-                    todo.append((fam, pre, seed, config, str(p), protocol, randomise))
+                    todo.append((fam, pre, seed, config, str(p), protocol, randomise, dict(device_overrides or {})))
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from tqdm import tqdm

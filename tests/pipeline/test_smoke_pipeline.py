@@ -70,6 +70,13 @@ def test_contract_outputs_exist(two_runs):
     assert (res / "report.html").stat().st_size > 10_000
     model = json.loads((res / "model" / "sensing.json").read_text())
     assert {"A1", "A2", "A3"} <= set(model["coef"])
+    # the charge resolution of every trial (reference-free): the sample's 16-bit shunt channel is dithered by its
+    # noise, so the offset's statistical error is all that is left (nC, not the uC of an undithered channel)
+    cres = model["fit_report"]["charge_resolution"]
+    assert set(cres["trials"]) == set(pd.read_csv(SAMPLE / "trials.csv")["trial"])
+    assert not cres["limited"] and "resolves the charge" in cres["note"]
+    for d in cres["trials"].values():
+        assert d["dithered"] and d["step_v"] > 0 and 0.0 < d["sigma_q_end_c"] < 1e-7
     for stem in ("fig17_voltage_charge", "fig21_h_calibration", "fig25-30_displacement_trials", "fig31-36_force_trials"):
         assert (res / "figures" / f"{stem}.png").exists() and (res / "figures" / f"{stem}.pdf").exists()
 

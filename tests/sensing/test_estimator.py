@@ -267,3 +267,41 @@ def test_two_port_force_row_keeps_a_passive_port(data):
     ea = _pct(auto.estimate(trials["val_obj_d"])["f_hat"].to_numpy(), ref)
     et = _pct(tp.estimate(trials["val_obj_d"])["f_hat"].to_numpy(), ref)
     assert abs(ea - et) < 0.5 and et < 3.0, (ea, et)
+
+
+def _with_shunt_record(df, R, step, noise_steps, seed=0):
+    """The trial with a shunt channel ``V_s`` that carries its current (R dq/dt plus an in-amp offset of a third of
+    a step) quantised with ADC step ``step`` and noise ``noise_steps`` (in steps)."""
+    t = df["t"].to_numpy(float)
+    i = np.concatenate([[0.0], np.diff(df["q"].to_numpy(float)) / np.diff(t)])
+    relay = df["relay"].to_numpy() >= 0.5
+    i[relay | np.concatenate([[False], relay[:-1]])] = 0.0   # the shorted leads, and the step of q as they open
+    rng = np.random.default_rng(seed)
+    vs = R * i + step / 3 + noise_steps * step * rng.standard_normal(len(t))
+    return df.assign(V_s=np.round(vs / step) * step)
+
+
+def test_charge_resolution_costs_scale_with_the_adc_step(data):
+    """The report of the charge resolution (estimator.charge_resolution): an undithered shunt channel is flagged,
+    and what its charge error moves in the tip estimates grows in proportion to the ADC step (the error is up to
+    half a step times the constant-current time, and the estimator is linear in the charge around it); a dithered
+    channel is not flagged. Only V_s, V and the relay are read."""
+    trials, meta = data
+    cfg = SensingConfig(n_play=12, n_sup=6, n_creep=0, creep=False, dc_offset=False, limit=False, **LEGACY)
+    est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    assert "no shunt resistance" in est.fit_report_["charge_resolution"]["note"]   # RIG gives none
+    est.rig = {**RIG, "shunt_resistance_ohm": 1000.0}
+    rep = {}
+    for step, noise in ((1e-3, 0.1), (4e-3, 0.1), (1e-3, 1.0)):
+        shunted = {k: _with_shunt_record(v, 1000.0, step, noise) for k, v in trials.items()}
+        rep[(step, noise)] = est.charge_resolution(shunted, meta)
+    fine, coarse, dithered = rep[(1e-3, 0.1)], rep[(4e-3, 0.1)], rep[(1e-3, 1.0)]
+    assert fine["limited"] and coarse["limited"] and not dithered["limited"]
+    assert "nA" in fine["note"] and "resolves the charge" in dithered["note"]
+    assert set(fine["trials"]) == set(meta.index)
+    for tid in ("val_free", "val_obj_d"):
+        a, b = fine["trials"][tid], coarse["trials"][tid]
+        assert a["current_step_a"] == pytest.approx(1e-6) and b["current_step_a"] == pytest.approx(4e-6)
+        assert b["sigma_q_end_c"] == pytest.approx(4 * a["sigma_q_end_c"], rel=1e-6)
+        assert a["dx_pct"] > 0 and b["dx_pct"] == pytest.approx(4 * a["dx_pct"], rel=0.05)
+        assert dithered["trials"][tid]["dx_pct"] == 0.0

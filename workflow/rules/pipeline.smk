@@ -75,7 +75,7 @@ rule calibrate_hysteresis:
 
 rule regress_coefficients:
     input:
-        signals=per_trial("signals", calibration_trials),
+        signals=per_trial("signals", all_trials),
         hysteresis=res("{dataset}", "model", "hysteresis.json"),
     output:
         res("{dataset}", "model", "sensing.json"),

@@ -40,9 +40,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-__all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "RELAX_TAUS_S", "Z_SUPPORT",
-           "AbsorptionFit", "HoldEvidence", "absorption_column", "find_holds", "fit_absorption", "hold_evidence",
-           "leak_column"]
+__all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "DITHER_MIN_STEPS", "RELAX_TAUS_S",
+           "Z_SUPPORT", "AbsorptionFit", "ChargeResolution", "HoldEvidence", "absorption_column", "charge_resolution",
+           "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -462,3 +462,138 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
                 + ("" if interior else f"; tau on the edge of the grid {taus[0]:g}-{taus[-1]:g} s")
                 + ("" if beats_leak else f"; not {1 - ABSORPTION_OVER_LEAK:.0%} better than the leakage form"))
     return out
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Resolution of the charge measurement: an ADC step that the noise does not dither
+# --------------------------------------------------------------------------------------------------------------------
+
+#: noise of a quantised channel (SD in ADC steps) below which the mean of a constant input is biased by the
+#: quantiser: the bias of the mean of ``round(x + n)`` for Gaussian n of SD sigma steps is at most
+#: ``exp(-2 pi^2 sigma^2) / pi`` steps (first harmonic of the quantisation error), 0.2 % of a step at 0.5 but 14 %
+#: at 0.2 and about a third at 0.1: below this SD the quantiser is taken as not dithered
+DITHER_MIN_STEPS = 0.5
+
+
+def quantisation_step(x: np.ndarray) -> float:
+    """Step of the lattice that a quantised record sits on (its ADC step in the record's units), or 0 when the
+    record is not quantised (the differences of its distinct values are not multiples of the smallest one:
+    floating-point data, a resampled or filtered record)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size < 10:
+        return 0.0
+    u = np.unique(x)
+    if u.size < 2:
+        return 0.0
+    d = np.diff(u)
+    tol = 1e-9 * max(float(np.max(np.abs(u))), 1e-300)
+    d = d[d > tol]
+    if not d.size:
+        return 0.0
+    step = float(np.min(d))
+    k = d / step
+    if np.mean(np.abs(k - np.round(k)) < 1e-3) < 0.99:
+        return 0.0
+    return step
+
+
+@dataclass
+class ChargeResolution:
+    """How well one trial's shunt channel resolves the actuator current (:func:`charge_resolution`)."""
+
+    step_v: float = 0.0                 # ADC step of V_s [V] (0: the record is not quantised)
+    current_step_a: float = 0.0         # the step as a current, step / R [A]
+    relay_noise_steps: float = float("nan")   # SD of V_s over the shorted leads, in steps
+    dithered: bool = True               # the noise dithers the quantiser where the current is constant
+    n_holds: int = 0
+    unresolved_hold_s: float = 0.0      # holds (and the relay short) whose current sits between two steps
+    sigma_q_end_c: float = 0.0          # SD of the charge error at the end of the trial [C]
+    sigma_q_rms_c: float = 0.0          # RMS over the trial of that SD [C]
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["relay_noise_steps"] = float(d["relay_noise_steps"]) if np.isfinite(d["relay_noise_steps"]) else None
+        return d
+
+
+def charge_resolution(df: pd.DataFrame, R: float) -> tuple[ChargeResolution, np.ndarray]:
+    """The charge error that the shunt channel's offset estimate and quantisation leave in ``q`` (thesis eq. 57),
+    and its SD over time [C].
+
+    ``charge_from_shunt`` subtracts the mean of ``V_s`` over the relay short (the in-amp offset) from the whole
+    record. Its error integrates over the trial:
+
+    * with noise that dithers the ADC step (SD >= :data:`DITHER_MIN_STEPS` steps), the mean is unbiased and its
+      error is statistical, ``SD / sqrt(N)`` over the short's N samples;
+    * without dither the mean is off by up to half a step (uniform, SD ``step / sqrt(12)``): while the drive moves,
+      the signal sweeps across the steps and reads true, so the subtracted offset error integrates; during a hold or
+      a rest whose current sits within a step of the short's, the channel reads the short's code whatever the
+      current: the hold's own error is again up to half a step, independent of the short's. Both integrate over
+      their durations.
+
+    Only ``V_s``, ``V``, ``t`` and the relay are read: no reference. Returns the summary and the SD of the charge
+    error per sample (0 while the relay is closed)."""
+    t = df["t"].to_numpy(dtype=float)
+    Vs = df["V_s"].to_numpy(dtype=float) if "V_s" in df else None
+    relay = df["relay"].to_numpy(dtype=float) >= 0.5
+    zero = np.zeros(len(t))
+    if Vs is None or len(t) < 10:
+        return ChargeResolution(note="no shunt-voltage record"), zero
+    step = quantisation_step(Vs)
+    if not step > 0:
+        return ChargeResolution(note="the shunt channel is not quantised (floating-point record)"), zero
+    i_step = step / float(R)
+    sd_bias = i_step / np.sqrt(12.0)
+    open_ = ~relay
+    if not open_.any() or relay.sum() < 2:
+        return ChargeResolution(step_v=step, current_step_a=i_step, note="no relay short to read the offset on"), zero
+    i_open = int(np.argmax(open_))
+    dt = float(np.median(np.diff(t)))
+    # the offset is read on the first shorted segment (signals.charge.relay_offset): its noise and length
+    r0 = int(np.argmax(relay))
+    r1 = r0 + (int(np.argmax(~relay[r0:])) if (~relay[r0:]).any() else len(t) - r0)
+    first = Vs[r0:r1]
+    relay_sd = float(np.std(first) / step)
+    idx = np.flatnonzero(open_)
+    holds = find_holds(t[idx], df["V"].to_numpy(dtype=float)[idx])
+    in_hold = np.zeros(len(t), bool)
+    sigma2 = np.zeros(len(t))
+    unresolved = 0.0
+    dithered = relay_sd >= DITHER_MIN_STEPS
+    for a, b in holds:
+        seg = Vs[idx[a:b]]
+        ts = t[idx[a:b]]
+        # the slow relaxation current of the hold is not noise: SD about the segment's linear trend
+        A = np.column_stack([np.ones_like(ts), ts - ts[0]])
+        r = seg - A @ np.linalg.lstsq(A, seg, rcond=None)[0]
+        if float(np.std(r)) / step >= DITHER_MIN_STEPS:
+            continue
+        dithered = False
+        in_hold[idx[a:b]] = True
+        ta, tb = float(ts[0]), float(ts[-1])
+        unresolved += tb - ta
+        sigma2 += (sd_bias * np.clip(t - ta, 0.0, tb - ta)) ** 2 * open_
+    # the offset subtracted from every open sample: statistical (dithered short) or the short's bias, integrated over
+    # the samples that read true (all of them when dithered; outside the unresolved holds when not)
+    if relay_sd >= DITHER_MIN_STEPS:
+        rate = relay_sd * i_step / np.sqrt(first.size)
+        reads = open_
+    else:
+        rate = sd_bias
+        unresolved += float(first.size) * dt
+        reads = open_ & ~in_hold
+    sigma2 += (rate * np.cumsum(reads) * dt) ** 2
+    sig = np.sqrt(sigma2)
+    sig[relay] = 0.0
+    sig[:i_open] = 0.0
+    res = ChargeResolution(step_v=step, current_step_a=i_step, relay_noise_steps=relay_sd, dithered=bool(dithered),
+                           n_holds=len(holds), unresolved_hold_s=unresolved if not dithered else 0.0,
+                           sigma_q_end_c=float(sig[-1]), sigma_q_rms_c=float(np.sqrt(np.mean(sig[open_] ** 2))))
+    res.note = (f"the noise dithers the ADC step: the charge error is that of the offset's mean, "
+                f"{res.sigma_q_end_c * 1e9:.3g} nC (1 SD) by the end of the trial" if dithered else
+                f"one ADC step is {i_step * 1e9:.3g} nA and the noise is below half a step where the current is "
+                f"constant ({unresolved:.3g} s of relay short and holds): the charge error reaches "
+                f"{res.sigma_q_end_c * 1e6:.3g} uC (1 SD) by the end of the trial")
+    return res, sig

@@ -10,6 +10,23 @@ from selfsense.devices import PROTOCOLS, _config_from, bench, run_device, write_
 __all__ = ["main"]
 
 
+def _overrides(items) -> dict:
+    """``["adc_bits=18", ...]`` -> ``{"adc_bits": 18}`` (numbers as int or float)."""
+    out = {}
+    for item in items:
+        name, sep, value = str(item).partition("=")
+        if not sep or not name:
+            raise ValueError(f"--set: expected NAME=VALUE, found {item!r}")
+        try:
+            out[name] = int(value)
+        except ValueError:
+            try:
+                out[name] = float(value)
+            except ValueError:
+                raise ValueError(f"--set {name}: expected a number, found {value!r}") from None
+    return out
+
+
 def main(argv=None) -> int:
     import argparse
 
@@ -46,6 +63,9 @@ def main(argv=None) -> int:
     b.add_argument("--randomise", default="hysteresis", choices=RANDOMISE,
                    help="hysteresis: the family and the device constants (default); device: also the rig, amplifier, "
                         "dielectric relaxation and drive holds (docs/simulator.md)")
+    b.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="device quantity set after the draw, e.g. --set adc_bits=18 (the same devices, drives and "
+                        "noise with a finer ADC); repeatable")
     b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
     a = ap.parse_args(argv)
     try:
@@ -68,7 +88,7 @@ def main(argv=None) -> int:
                 if p not in PRESETS:
                     raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
             bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol,
-                  randomise=a.randomise)
+                  randomise=a.randomise, device_overrides=_overrides(a.set))
             print(Path(a.out) / "cross_device.md")
     except (ValueError, OSError) as exc:
         print(f"selfsense devices: error: {exc}", file=sys.stderr)

@@ -222,6 +222,13 @@ def _model_section(results_dir: Path) -> list[str]:
         if rest.get("note"):
             parts.append(f"<p>Rest offset dx0 (a tip that rests open or closed: remanent charge the integrator never "
                          f"saw): {html.escape(str(rest['note']))}.</p>")
+    cres = d.get("fit_report", {}).get("charge_resolution") or {}
+    if cres.get("note"):
+        parts.append(f"<p>Charge resolution (the shunt channel's ADC step where the current is constant, docs/method.md "
+                     f"1b): {html.escape(str(cres['note']))}"
+                     + (f"; on the validation trials it is worth {cres.get('validation_dx_pct', 0):.3g} % of the "
+                        f"displacement range and {cres.get('validation_f_pct', 0):.3g} % of the force range on average "
+                        f"(1 SD of the charge error; compare Table 3)" if cres.get("limited") else "") + ".</p>")
     meaning = {"A1": "tip displacement per total charge", "A2": "tip displacement per piezo voltage",
                "A3": "tip force per actuator charge (thesis eq. 52)", "B21": "tip force per total charge",
                "B22": "tip force per piezo voltage",

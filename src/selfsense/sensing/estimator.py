@@ -1211,8 +1211,71 @@ class SelfSensingEstimator:
             "rms_dx_m": float(np.sqrt(np.mean((self._predict_raw(Xd)[0] - yd) ** 2))),
             "rms_f_n": float(np.sqrt(np.mean((self._predict_raw(Xf)[1] - yf) ** 2))),
         }
-
+        self.fit_report_["charge_resolution"] = self.charge_resolution(trials, meta)
         return self
+
+    def charge_resolution(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> dict:
+        """What the quantisation of the shunt channel costs the tip estimates, per trial and in summary
+        (:func:`selfsense.chain.charge.charge_resolution`): where the noise does not dither the ADC step, the charge
+        of the relay short and of the holds is off by up to half a step times their duration. The estimate is run
+        once more with the charge moved by one SD of that error; the mean change of the raw tip estimates is
+        reported in % of the calibration references' ranges (the scale of Table 3). Only V_s, V and the relay of each
+        trial are read, no reference; nothing is fitted from it."""
+        from selfsense.chain.charge import charge_resolution
+
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        try:
+            R = _rig_get(self.rig, "shunt_resistance_ohm")
+        except (KeyError, AttributeError, TypeError):
+            return {"trials": {}, "limited": False, "validation_dx_pct": 0.0, "validation_f_pct": 0.0,
+                    "calibration_h_target_v": 0.0, "note": "the rig gives no shunt resistance: not assessed"}
+        spans = {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
+                 "f": float(np.ptp(self.ranges_.get("f", [0.0, 0.0])))}
+        per = {}
+        for tid in meta.index:
+            if tid not in trials:
+                continue
+            df = trials[tid]
+            res, sig = charge_resolution(df, R)
+            d = res.to_dict()
+            d["dx_pct"] = d["f_pct"] = 0.0
+            if not res.dithered and np.any(sig > 0):
+                base = self.estimate(df)
+                moved = self.estimate(_with_column(df, "q", df["q"].to_numpy(dtype=float) + sig))
+                m = df["relay"].to_numpy() < 0.5
+                for key, col in (("dx_pct", "dx_raw"), ("f_pct", "f_raw")):
+                    span = spans["dx" if key == "dx_pct" else "f"]
+                    diff = np.abs(moved[col].to_numpy() - base[col].to_numpy())[m]
+                    d[key] = float(np.mean(diff) / span * 100.0) if span > 0 and diff.size else 0.0
+            per[str(tid)] = d
+        limited = {t: d for t, d in per.items() if not d["dithered"] and d["current_step_a"] > 0}
+        if not per:
+            note = "no trial"
+        elif not limited:
+            note = "the shunt channel resolves the charge in every trial (its noise dithers the ADC step)"
+        else:
+            worst = max(limited, key=lambda t: limited[t]["dx_pct"] + limited[t]["f_pct"])
+            w = limited[worst]
+            note = (f"one ADC step of the shunt channel is {w['current_step_a'] * 1e9:.3g} nA and its noise is "
+                    f"{'below half a step' if w['relay_noise_steps'] is None else format(w['relay_noise_steps'], '.2f') + ' step'}"
+                    f" where the current is constant: the quantiser is not dithered in {len(limited)} of {len(per)} "
+                    f"trials, and the charge of the relay short and the holds is off by up to half a step times their "
+                    f"duration. Worst trial {worst}: {w['sigma_q_end_c'] * 1e6:.3g} uC (1 SD) by its end; moving its charge "
+                    f"by that much moves the tip estimates by {w['dx_pct']:.3g} % of the displacement range and "
+                    f"{w['f_pct']:.3g} % of the force range. A larger shunt resistance or in-amp gain, a finer ADC or "
+                    f"an added dither resolves it")
+        roles = meta["role"] if "role" in meta else pd.Series(dtype=str)
+        val = [t for t in per if str(roles.get(t, "")) == "validation"]
+        cal = [t for t in per if str(roles.get(t, "")) == "calibration"]
+        mean = (lambda k, ts: float(np.mean([per[t][k] for t in ts])) if ts else 0.0)
+        slope = float(getattr(self, "h_slope_", 0.0))
+        slope = slope if np.isfinite(slope) else 0.0
+        h_target_v = abs(slope) * float(np.sqrt(np.mean([per[t]["sigma_q_rms_c"] ** 2 for t in cal]))) if cal else 0.0
+        if limited and cal:
+            note += (f". On the calibration trials the charge error is {h_target_v:.3g} V of the H(q) target "
+                     f"V - Q / (n_A C_p) (1 SD, RMS): H(q) is calibrated on charge that this channel does not resolve")
+        return {"trials": per, "limited": bool(limited), "validation_dx_pct": mean("dx_pct", val),
+                "validation_f_pct": mean("f_pct", val), "calibration_h_target_v": h_target_v, "note": note}
 
     def fit(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
         """Calibrate H(q) then regress the sensing coefficients, on calibration trials only."""
