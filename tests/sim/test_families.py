@@ -164,3 +164,33 @@ def test_cross_device_protocols_and_the_mixed_drive_column():
     assert agg.loc[0, "displacement_median_pct"] == pytest.approx(2.0)
     assert agg.loc[0, "mixed_displacement_median_pct"] == pytest.approx(5.0)
     assert "5.00 / 3.00" in aggregate_markdown(agg)
+
+
+def test_device_overrides_are_checked_and_recorded(tmp_path):
+    """``selfsense devices bench --set NAME=VALUE`` (run_device's ``device_overrides``): an unknown quantity or a
+    malformed item is refused with its name before anything is simulated; a resumed folder made with other
+    overrides is refused too, so that two ADCs never mix in one table."""
+    import json
+
+    from selfsense.cli.devices import _overrides, main
+    from selfsense.devices import bench, run_device
+
+    assert _overrides(["adc_bits=18", "laser_noise_m=1e-6"]) == {"adc_bits": 18, "laser_noise_m": 1e-6}
+    with pytest.raises(ValueError, match="expected NAME=VALUE"):
+        _overrides(["adc_bits"])
+    with pytest.raises(ValueError, match="--set adc_bits: expected a number"):
+        _overrides(["adc_bits=many"])
+    with pytest.raises(ValueError, match=r"unknown device quantities \['adc_bitz'\]"):
+        run_device("preisach", "clean", 0, device_overrides={"adc_bitz": 18})
+    assert main(["bench", "--n", "1", "--families", "gpi", "--presets", "clean", "--set", "adc_bits",
+                 "--out", str(tmp_path / "x")]) == 2
+    rec_dir = tmp_path / "b" / "records"
+    rec_dir.mkdir(parents=True)
+    (rec_dir / "gpi_clean_0.json").write_text(json.dumps(
+        {"family": "gpi", "preset": "clean", "seed": 0, "protocol": "thesis", "randomise": "device",
+         "override_adc_bits": 18, "status": "ok", "displacement_pct": 1.0, "force_pct": 1.0}))
+    with pytest.raises(ValueError, match="device overrides"):
+        bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False)
+    out = bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
+                device_overrides={"adc_bits": 18})   # resumed: nothing simulated
+    assert out.loc[0, "displacement_median_pct"] == pytest.approx(1.0)
