@@ -134,3 +134,36 @@ def test_offset_form_is_chosen_by_held_out_rests(kind):
     r0 = (sens * dq[rest]) + 1e-4 * rng.standard_normal(rest.sum())
     form, cv = select_offset_form(-r0, sens, {n: b[rest] for n, b in offset_bases(t, 20.0).items()}, runs)
     assert (form == "ramp") == (kind == "ramp"), cv
+
+
+def _with_quantised_shunt(df, R, step, noise_steps, seed=0):
+    """The trial with a shunt channel: ``R dq/dt`` plus an in-amp offset of a third of a step, noise of
+    ``noise_steps`` steps, rounded to the ADC step."""
+    t = df["t"].to_numpy(float)
+    i = np.concatenate([[0.0], np.diff(df["q"].to_numpy(float)) / np.diff(t)])
+    rng = np.random.default_rng(seed)
+    vs = R * i + step / 3 + noise_steps * step * rng.standard_normal(len(t))
+    return df.assign(V_s=np.round(vs / step) * step)
+
+
+def test_holds_below_an_undithered_adc_step_do_not_support_leakage():
+    """A leakage of 2 nS draws 0.2 uA at 100 V: measured by a channel whose undithered step is 1 uA, the holds' charge
+    slopes are off by up to half a step, so the evidence is not supported (and no measured g is handed to the
+    calibration's bound); with dither or a 50x finer step (4 steps = 0.08 uA) the holds resolve it."""
+    from selfsense.sensing.estimator import leakage_measured_by_holds
+
+    g, R = 2e-9, 1000.0
+    base = {f"tr{k}": _trial([50.0, 0.0, 100.0, 0.0, 75.0], 20.0, g, seed=k) for k in range(3)}
+    assert hold_evidence(base).supported
+    coarse = {k: _with_quantised_shunt(v, R, 1e-3, 0.1, seed=i) for i, (k, v) in enumerate(base.items())}
+    ev = hold_evidence(coarse, R=R)
+    assert not ev.supported and not ev.resolved
+    assert ev.resolution_floor_a == pytest.approx(1e-6)
+    assert "resolves" in ev.note and "ADC step" in ev.note
+    assert leakage_measured_by_holds(ev.to_dict()) is None
+    for step, noise in ((2e-5, 0.1), (1e-3, 1.0)):
+        fine = {k: _with_quantised_shunt(v, R, step, noise, seed=i) for i, (k, v) in enumerate(base.items())}
+        ev = hold_evidence(fine, R=R)
+        assert ev.resolved, (step, noise, ev.note)
+    # without R (or without V_s) the channel's resolution is not assessed: the evidence is that of the charge alone
+    assert hold_evidence(coarse).resolution_floor_a == 0.0

@@ -117,6 +117,11 @@ class HoldEvidence:
     g_loto_s: list = field(default_factory=list)
     g_slow_s: float = float("nan")
     longest_hold_s: float = 0.0
+    #: an ADC step [A] of the shunt channel where the noise does not dither it (0: dithered or not known): the
+    #: holds' resolution
+    resolution_floor_a: float = 0.0
+    #: the leakage current across the hold levels is above that floor (Z_SUPPORT x): the holds resolve g
+    resolved: bool = True
     offset_f: float = 0.0
     offset_supported: bool = False
     supported: bool = False
@@ -179,10 +184,17 @@ def _wls(X, y, w):
     return c, float(r @ r)
 
 
-def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
+def hold_evidence(trials: Mapping[str, pd.DataFrame], R: float | None = None) -> HoldEvidence:
     """Leakage conductance g [S] and offset-drift evidence from the holds of every trial (module docstring).
 
-    ``trials``: trial id -> prepared frame with ``t``, ``V``, ``q`` and ``relay`` (other columns are not read).
+    ``trials``: trial id -> prepared frame with ``t``, ``V``, ``q`` and ``relay`` (and ``V_s``, read with the shunt
+    resistance ``R`` [ohm] for the resolution of the channel; other columns are not read). Where the shunt channel
+    is not dithered in a trial (:func:`charge_resolution`), a hold's charge slope is off by up to half an ADC step
+    whatever its length, and the difference of two holds' by up to a whole step: the evidence is supported only if
+    the leakage current across the hold levels, ``g`` times their voltage span, is at least :data:`Z_SUPPORT` ADC
+    steps (``step / R``). (Measured on a clean 13-bit whole-device Preisach device: holds at 0 and 148 V gave
+    g = 7.3 nS with z >> 4, 1.4 steps across the levels, from quantisation and relaxation currents the channel
+    does not resolve.)
     """
     rows = []
     for k, (name, df) in enumerate(trials.items()):
@@ -194,6 +206,12 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
             continue
         rows.extend(_hold_rows(str(name), k, t, df["V"].to_numpy(float)[a:], df["q"].to_numpy(float)[a:]))
     ev = HoldEvidence(n_holds=len(rows))
+    if R:
+        for df in trials.values():
+            if "V_s" in df:
+                res, _ = charge_resolution(df, R)
+                if not res.dithered and res.current_step_a > 0:
+                    ev.resolution_floor_a = max(ev.resolution_floor_a, res.current_step_a)
     if not rows:
         ev.note = "no hold of at least 0.5 s in any trial: leakage cannot be seen without a hold"
         return ev
@@ -246,9 +264,15 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame]) -> HoldEvidence:
     ev.g_slow_s = float(_wls(Xs_, ys_, ws_)[0][0]) if len(ys_) > Xs_.shape[1] else float("nan")
     stable = bool(np.isfinite(ev.g_slow_s) and abs(ev.g_slow_s - ev.g_s) <= max(0.25 * abs(ev.g_s), ev.g_se_s))
     ev.longest_hold_s = float(max(r["w"] for r in rows) / 0.7)
+    resolved = bool(ev.resolution_floor_a == 0.0 or abs(ev.g_s) * vspan >= Z_SUPPORT * ev.resolution_floor_a)
+    ev.resolved = resolved
     ev.supported = bool(ev.g_s > 0 and ev.z >= Z_SUPPORT and len(kk) >= 2 and ev.n_levels >= 2 and stable
-                        and loto_ok)
+                        and loto_ok and resolved)
     why = []
+    if not resolved:
+        why.append(f"a leakage current the shunt channel resolves: g x {vspan:.3g} V of hold levels = "
+                   f"{abs(ev.g_s) * vspan * 1e9:.3g} nA against {Z_SUPPORT:g} x {ev.resolution_floor_a * 1e9:.3g} nA, "
+                   f"an ADC step that the noise does not dither (docs/method.md 1b)")
     if not (ev.g_s > 0 and ev.z >= Z_SUPPORT):
         why.append(f"g > 0 with z >= {Z_SUPPORT:g} (z = {ev.z:.2f})")
     if len(kk) < 2 or ev.n_levels < 2:
@@ -547,21 +571,25 @@ def charge_resolution(df: pd.DataFrame, R: float) -> tuple[ChargeResolution, np.
     i_step = step / float(R)
     sd_bias = i_step / np.sqrt(12.0)
     open_ = ~relay
-    if not open_.any() or relay.sum() < 2:
-        return ChargeResolution(step_v=step, current_step_a=i_step, note="no relay short to read the offset on"), zero
+    if not open_.any():
+        return ChargeResolution(step_v=step, current_step_a=i_step, note="no relay-open samples"), zero
     i_open = int(np.argmax(open_))
     dt = float(np.median(np.diff(t)))
-    # the offset is read on the first shorted segment (signals.charge.relay_offset): its noise and length
-    r0 = int(np.argmax(relay))
-    r1 = r0 + (int(np.argmax(~relay[r0:])) if (~relay[r0:]).any() else len(t) - r0)
-    first = Vs[r0:r1]
-    relay_sd = float(np.std(first) / step)
+    # the offset is read on the first shorted segment (signals.charge.relay_offset): its noise and length (none:
+    # the offset was given, and only the holds are assessed)
+    if relay.sum() >= 2:
+        r0 = int(np.argmax(relay))
+        r1 = r0 + (int(np.argmax(~relay[r0:])) if (~relay[r0:]).any() else len(t) - r0)
+        first = Vs[r0:r1]
+        relay_sd = float(np.std(first) / step)
+    else:
+        first, relay_sd = Vs[:0], float("nan")
     idx = np.flatnonzero(open_)
     holds = find_holds(t[idx], df["V"].to_numpy(dtype=float)[idx])
     in_hold = np.zeros(len(t), bool)
     sigma2 = np.zeros(len(t))
     unresolved = 0.0
-    dithered = relay_sd >= DITHER_MIN_STEPS
+    dithered = not relay_sd < DITHER_MIN_STEPS   # (no short: nan, the holds decide)
     for a, b in holds:
         seg = Vs[idx[a:b]]
         ts = t[idx[a:b]]
@@ -577,7 +605,9 @@ def charge_resolution(df: pd.DataFrame, R: float) -> tuple[ChargeResolution, np.
         sigma2 += (sd_bias * np.clip(t - ta, 0.0, tb - ta)) ** 2 * open_
     # the offset subtracted from every open sample: statistical (dithered short) or the short's bias, integrated over
     # the samples that read true (all of them when dithered; outside the unresolved holds when not)
-    if relay_sd >= DITHER_MIN_STEPS:
+    if not first.size:
+        rate, reads = 0.0, open_
+    elif relay_sd >= DITHER_MIN_STEPS:
         rate = relay_sd * i_step / np.sqrt(first.size)
         reads = open_
     else:

@@ -360,7 +360,8 @@ def leakage_measured_by_holds(ev: Mapping) -> float | None:
     from selfsense.chain.charge import Z_SUPPORT
 
     g, z = float(ev.get("g_s") or 0.0), float(ev.get("z") or 0.0)
-    ok = g > 0 and z >= Z_SUPPORT and int(ev.get("n_levels") or 0) >= 2 and int(ev.get("n_trials") or 0) >= 2
+    ok = (g > 0 and z >= Z_SUPPORT and int(ev.get("n_levels") or 0) >= 2 and int(ev.get("n_trials") or 0) >= 2
+          and bool(ev.get("resolved", True)))   # an undithered shunt channel does not resolve it (method.md 1b)
     return g if ok else None
 
 
@@ -526,7 +527,13 @@ class SelfSensingEstimator:
 
         # (the same V, Q and relay of every trial give the hold rows of the H(q) fit, _hold_set)
         self._all_trials = {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}
-        self.hold_evidence_ = hold_evidence(self._all_trials).to_dict()
+        try:
+            R_shunt = _rig_get(self.rig, "shunt_resistance_ohm")
+        except (KeyError, AttributeError, TypeError):
+            R_shunt = None
+        self.hold_evidence_ = hold_evidence(
+            {t: df[[c for c in ("t", "V", "q", "relay", "V_s") if c in df]] for t, df in trials.items()
+             if t in meta.index}, R=R_shunt).to_dict()
         cal_trials = {t: trials[t] for t in cal.index}
 
         p = _rig_params(self.rig)
