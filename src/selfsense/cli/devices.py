@@ -46,6 +46,8 @@ def main(argv=None) -> int:
     r.add_argument("--randomise", default="hysteresis", choices=RANDOMISE,
                    help="hysteresis: the family and the device constants (default); device: also the rig, amplifier, "
                         "dielectric relaxation and drive holds (docs/simulator.md)")
+    r.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="device quantity set after the draw, e.g. --set adc_bits=18; repeatable")
     r.add_argument("--out", required=True, help="record file (JSON) to write")
     t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
     t.add_argument("records", nargs="+", help="record JSON files")
@@ -70,7 +72,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     try:
         if a.cmd == "run":
-            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol, a.randomise)
+            rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol, a.randomise,
+                             _overrides(a.set))
             write_record(rec, a.out)
             print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
                   f"force {rec['force_pct']:.2f} % ({rec['status']})")
