@@ -527,13 +527,9 @@ class SelfSensingEstimator:
 
         # (the same V, Q and relay of every trial give the hold rows of the H(q) fit, _hold_set)
         self._all_trials = {t: df[["t", "V", "q", "relay"]] for t, df in trials.items() if t in meta.index}
-        try:
-            R_shunt = _rig_get(self.rig, "shunt_resistance_ohm")
-        except (KeyError, AttributeError, TypeError):
-            R_shunt = None
         self.hold_evidence_ = hold_evidence(
             {t: df[[c for c in ("t", "V", "q", "relay", "V_s") if c in df]] for t, df in trials.items()
-             if t in meta.index}, R=R_shunt).to_dict()
+             if t in meta.index}, R=self._shunt_resistance()).to_dict()
         cal_trials = {t: trials[t] for t in cal.index}
 
         p = _rig_params(self.rig)
@@ -1221,6 +1217,14 @@ class SelfSensingEstimator:
         self.fit_report_["charge_resolution"] = self.charge_resolution(trials, meta)
         return self
 
+    def _shunt_resistance(self) -> float | None:
+        """The rig's shunt resistance [ohm], or None where the rig gives none (the charge resolution is then not
+        assessed)."""
+        try:
+            return _rig_get(self.rig, "shunt_resistance_ohm")
+        except (KeyError, AttributeError, TypeError):
+            return None
+
     def charge_resolution(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> dict:
         """What the quantisation of the shunt channel costs the tip estimates, per trial and in summary
         (:func:`selfsense.chain.charge.charge_resolution`): where the noise does not dither the ADC step, the charge
@@ -1231,9 +1235,8 @@ class SelfSensingEstimator:
         from selfsense.chain.charge import charge_resolution
 
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
-        try:
-            R = _rig_get(self.rig, "shunt_resistance_ohm")
-        except (KeyError, AttributeError, TypeError):
+        R = self._shunt_resistance()
+        if R is None:
             return {"trials": {}, "limited": False, "validation_dx_pct": 0.0, "validation_f_pct": 0.0,
                     "calibration_h_target_v": 0.0, "note": "the rig gives no shunt resistance: not assessed"}
         spans = {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
