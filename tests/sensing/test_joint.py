@@ -128,6 +128,45 @@ def test_leakage_compensation_recovers_an_injected_leakage():
         assert clean.leakage_s_ == 0.0 or clean.leakage_s_ < 0.3e-9
 
 
+def test_a_reused_leakage_search_gives_the_fit_a_new_search_gives_and_only_on_the_same_inputs():
+    """The gap diagnostic's recalibrations take over the pipeline fit's leakage search when their calibration inputs
+    are the same bits: the fit is then bit for bit the fit that searches again; other inputs (the charge moved by
+    1 pC) or a forced mode that needs numbers the reused search lacks search again."""
+    sc = _short(draw_device("preisach", 21, "clean"))
+    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
+    with tempfile.TemporaryDirectory() as tmp:
+        ds, rig, meta, sigs = _dataset(sc, tmp)
+        first = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
+        search = first.fit_report_["hysteresis"]["drift"]["search"]
+        assert not search["reused"] and len(search["g_folds"]) == 3 and len(search["inputs_sha256"]) == 64
+        fresh = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"hold_rows": "off"})
+        fresh.fit_hysteresis(sigs, meta)
+        again = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"hold_rows": "off"},
+                                     leakage_search_reuse=search)
+        again.fit_hysteresis(sigs, meta)
+        d_fresh, d_again = (e.fit_report_["hysteresis"]["drift"] for e in (fresh, again))
+        assert d_again["search"]["reused"] and not d_fresh["search"]["reused"]
+        assert again.leakage_s_ == fresh.leakage_s_ > 0
+        assert {k: v for k, v in d_again.items() if k != "search"} == {k: v for k, v in d_fresh.items() if k != "search"}
+        q = sigs["cal_free_sine"]["q"].to_numpy()
+        assert np.array_equal(again.hysteresis_.predict(q), fresh.hysteresis_.predict(q))
+        # other inputs: searched again
+        moved = dict(sigs)
+        moved["cal_free_sine"] = sigs["cal_free_sine"].assign(q=sigs["cal_free_sine"]["q"] + 1e-12)
+        other = SelfSensingEstimator(config=SensingConfig(), rig=rig, leakage_search_reuse=search)
+        other.fit_hysteresis(moved, meta)
+        assert not other.fit_report_["hysteresis"]["drift"]["search"]["reused"]
+        # forced on: the leave-one-block-out estimates are not searched (only the calibration rows' gate reads them)
+        on = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"leakage": "on"}).fit_hysteresis(sigs, meta)
+        d_on = on.fit_report_["hysteresis"]["drift"]
+        assert d_on["leakage_s_folds"] is None and d_on["applied"] and on.leakage_s_ > 0
+        # a search without folds cannot decide "auto": searched again
+        auto = SelfSensingEstimator(config=SensingConfig(), rig=rig, leakage_search_reuse=d_on["search"])
+        auto.fit_hysteresis(sigs, meta)
+        assert not auto.fit_report_["hysteresis"]["drift"]["search"]["reused"]
+        assert auto.leakage_s_ == first.leakage_s_
+
+
 def test_rest_segments_recover_an_injected_offset_drift():
     """A Preisach device with only a 10 uV/s in-amp offset drift injected: on a validation trial the rest-segment
     estimate recovers the charge error b t^2 of the drift (b = m / (2 R), R the shunt) within 35 %, and the

@@ -135,14 +135,18 @@ def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> 
     return new, outc
 
 
-def _make(make_estimator: Callable, rig, members: dict | None = None, form: tuple = ()):
+def _make(make_estimator: Callable, rig, members: dict | None = None, form: tuple = (), reuse=None):
     """An unfitted estimator of the configuration, with ``members`` forced and, when ``form`` is given (the fitted
     estimator's :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.selected_form`), its H(q) form held: a
     recalibration refits the selected form beside the straight line instead of repeating the whole selection, so
-    that before and after differ by the correction or the member alone, not by a change of the selected form."""
+    that before and after differ by the correction or the member alone, not by a change of the selected form.
+    ``reuse``: the fitted estimator's leakage search (:func:`_search_of`), taken over by a recalibration on the same
+    calibration inputs (the estimator checks their digest) instead of searched again."""
     est = make_estimator(rig)
     if form and hasattr(est, "h_candidates"):
         est.h_candidates = tuple(form)
+    if reuse and hasattr(est, "leakage_search_reuse"):
+        est.leakage_search_reuse = dict(reuse)
     if members:
         if not hasattr(est, "members"):
             raise TypeError(f"{type(est).__name__} carries no chain members; cannot force {sorted(members)}")
@@ -162,17 +166,23 @@ def adopted_members(fitted) -> dict:
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False))}
 
 
+def _search_of(fitted):
+    """The fitted estimator's leakage search (``fit_report_["hysteresis"]["drift"]["search"]``), or None."""
+    rep = getattr(fitted, "fit_report_", None) or {}
+    return (rep.get("hysteresis", {}).get("drift") or {}).get("search")
+
+
 def _form_of(fitted) -> tuple:
     """The fitted estimator's selected H(q) form (held in every recalibration of the diagnostic), or ``()``."""
     return fitted.selected_form() if fitted is not None and hasattr(fitted, "selected_form") else ()
 
 
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
-              estimator=None, members: dict | None = None, form: tuple = ()):
+              estimator=None, members: dict | None = None, form: tuple = (), reuse=None):
     """Per validation trial: thesis Table 3's error (mean |estimate - reference| in % of the trial's reference
     range, every finite sample, :func:`selfsense.report.tables.trial_errors`) and the same per contiguous block
     (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted)."""
-    est = estimator if estimator is not None else _make(make_estimator, rig, members, form).fit(trials, meta)
+    est = estimator if estimator is not None else _make(make_estimator, rig, members, form, reuse).fit(trials, meta)
     rows = {}
     for t, m in meta.iterrows():
         if m["role"] != "validation":
@@ -275,7 +285,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     def refit(k):
         S_fit, mem_items = k
         tr_fit, _ = _apply(trials, [corr[n] for n in sorted(S_fit)], meta)
-        return _make(make_estimator, rig, dict(mem_items), form).fit(tr_fit, meta)
+        return _make(make_estimator, rig, dict(mem_items), form, _search_of(fitted)).fit(tr_fit, meta)
 
     def table(S: frozenset, bare: bool = True, mem: dict | None = None):
         mem = members_of(S, bare) if mem is None else mem
@@ -403,7 +413,8 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
     def without(mem: dict) -> dict:
         key = tuple(sorted(mem.items()))
         if key not in tables:
-            tables[key] = tip_table(trials, meta, rig, make_estimator, members=mem, form=form)
+            tables[key] = tip_table(trials, meta, rig, make_estimator, members=mem, form=form,
+                                    reuse=_search_of(fitted))
         return _summary(tables[key])
 
     if not carried:

@@ -120,15 +120,20 @@ class LinearParamH:
         u = self._u(q)
         B = self._basis(u, stride)
         us = u[::stride]
-        cols = [B, us[:, None]]
-        pen = [np.ones(B.shape[1], bool), np.zeros(1, bool)]
-        if self.creep and self.creep_tau_s:
-            C = np.column_stack([relaxation_bank(u, float(dt), [t])[::stride, 0] for t in self.creep_tau_s])
-            cols.append(C)
-            pen.append(np.ones(C.shape[1], bool))
-        cols.append(np.ones((us.size, 1)))
-        pen.append(np.zeros(1, bool))
-        return np.column_stack(cols), np.concatenate(pen)
+        taus = list(self.creep_tau_s) if self.creep and self.creep_tau_s else []
+        nb = B.shape[1]
+        # filled in place (one copy of the basis, not one per stacking): the same values as column-stacking
+        # [B | u | creep bank | 1]
+        X = np.empty((us.size, nb + 2 + len(taus)))
+        X[:, :nb] = B
+        X[:, nb] = us
+        for j, t in enumerate(taus):
+            X[:, nb + 1 + j] = relaxation_bank(u, float(dt), [t])[::stride, 0]
+        X[:, -1] = 1.0
+        pen = np.zeros(X.shape[1], bool)
+        pen[:nb] = True
+        pen[nb + 1:nb + 1 + len(taus)] = True
+        return X, pen
 
     def prepare(self, q, dt: float) -> "LinearParamH":
         """Set the input normalisation (charge range of the calibration data) and the sample time, without
