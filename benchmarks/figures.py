@@ -68,7 +68,7 @@ COMMANDS = {
                     "--out benchmarks/cross_device/whole_device/thesis",
     "whole_device_relay_fix": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                               "--out benchmarks/cross_device/whole_device/thesis_relay_fix",
-    "whole_device_charge_resolution": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
+    "whole_device_charge_resolution": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                                       "--out benchmarks/cross_device/whole_device/thesis_charge_resolution",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
@@ -332,10 +332,10 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"])
                if (ROOT / WHOLE_RELAY / "cross_device.csv").exists() else [])
             # the same seeds with the current code: the hold evidence gated by the charge resolution (1 of 50 records
-            # changed)
+            # changed); seeds 5-9 added with the same code (first contact, 10 devices per family and preset)
             + (_device_table_figures(f"{WHOLE_CRES}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, current code (hold evidence "
-                                     "gated by the charge resolution), seeds 0-4",
+                                     "gated by the charge resolution), seeds 0-9 (5-9 scored once, first contact)",
                                      COMMANDS["whole_device_charge_resolution"],
                                      DATES["whole_device_charge_resolution"])
                if (ROOT / WHOLE_CRES / "cross_device.csv").exists() else [])
