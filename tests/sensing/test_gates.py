@@ -22,6 +22,10 @@ def test_leakage_from_the_calibration_rows_at_its_threshold():
     assert E.leakage_supported_by_calibration(g, [0.5 * g + 1e-15, 1.5 * g - 1e-15], 0.9, 1.0)
     assert not E.leakage_supported_by_calibration(g, [0.5 * g - 1e-12], 0.9, 1.0)      # folds disagree by > 50 %
     assert not E.leakage_supported_by_calibration(0.05e-9, [0.05e-9], 0.5, 1.0)        # below 0.1 nS
+    # a majority of the leave-one-block-out estimates must agree: 2 of 3, not 1 of 3 (nor 1 of 2)
+    assert E.leakage_supported_by_calibration(g, [g, 1.4 * g, 3 * g], 0.9, 1.0)
+    assert not E.leakage_supported_by_calibration(g, [g, 0.4 * g, 3 * g], 0.9, 1.0)
+    assert not E.leakage_supported_by_calibration(g, [g, 3 * g], 0.9, 1.0)
 
 
 def test_leakage_from_the_holds_at_its_threshold():

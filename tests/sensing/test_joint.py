@@ -167,6 +167,23 @@ def test_a_reused_leakage_search_gives_the_fit_a_new_search_gives_and_only_on_th
         assert auto.leakage_s_ == first.leakage_s_
 
 
+def test_leakage_is_checked_with_a_selected_form_outside_the_search_reference():
+    """Thesis protocol, Bouc-Wen drift seed 4: the holds measure 5.2 nS (4.2 nS injected) and the leakage search's
+    Preisach reference supports it, but the selected Duhem form has a lower blocked-CV error without it: the
+    calibration is repeated without leakage, and the check's numbers are reported."""
+    sc = draw_device("bouc_wen", 4, "drift")
+    sc["trials"] = [t for t in sc["trials"] if t["trial"] != "cal_free_mixed"]
+    with tempfile.TemporaryDirectory() as tmp:
+        ds, rig, meta, sigs = _dataset(sc, tmp)
+        est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
+    drift = est.fit_report_["hysteresis"]["drift"]
+    check = drift["selected_form_check"]
+    assert check["form"].startswith("duhem") and check["leakage_s"] > 1e-9
+    assert not check["kept"] and check["cv_rms_v_without"] < check["cv_rms_v_with"]
+    assert est.leakage_s_ == 0.0 and not drift["applied"] and "not kept" in drift["note"]
+    assert est.hysteresis_.kind == "duhem"
+
+
 def test_rest_segments_recover_an_injected_offset_drift():
     """A Preisach device with only a 10 uV/s in-amp offset drift injected: on a validation trial the rest-segment
     estimate recovers the charge error b t^2 of the drift (b = m / (2 R), R the shunt) within 35 %, and the

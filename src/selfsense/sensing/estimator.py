@@ -343,7 +343,9 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
 # ---- the charge-link and rest-offset gates (docs/method.md 6c, 6c'): adopted on the calibration rows' blocked CV --
 #: leakage from the calibration rows: the blocked-CV error with g must not be higher than without (ratio <= 1) ...
 LEAK_CAL_MAX_CV_RATIO = 1.0
-#: ... and the leave-one-block-out estimates of g must agree with g within this fraction of g
+#: ... and a majority of the leave-one-block-out estimates of g (2 of 3) must agree with g within this fraction of g
+#: (one block left out can remove most of a trial's ramp of int V dt: one stray estimate of three is common on
+#: devices with leakage, docs/method.md 6c)
 LEAK_FOLD_AGREEMENT = 0.5
 #: leakage from the holds of every trial: the calibration rows' blocked-CV error may grow by at most 2 % with it
 LEAK_HOLD_MAX_CV_RATIO = 1.02
@@ -358,9 +360,10 @@ REST_OFFSET_MIN_GAIN = 0.02
 
 def leakage_supported_by_calibration(g: float, g_folds, cv_with: float, cv_without: float) -> bool:
     """Leakage ``g`` [S] from the calibration rows is supported when it is above 0.1 nS, its blocked-CV error is not
-    higher than without it, and every leave-one-block-out estimate lies within 50 % of it."""
-    return bool(g > 0.1e-9 and cv_with <= LEAK_CAL_MAX_CV_RATIO * cv_without
-                and all(abs(x - g) <= LEAK_FOLD_AGREEMENT * g for x in g_folds))
+    higher than without it, and more than half of the leave-one-block-out estimates (2 of 3) lie within 50 % of it."""
+    g_folds = list(g_folds)
+    agree = sum(abs(x - g) <= LEAK_FOLD_AGREEMENT * g for x in g_folds)
+    return bool(g > 0.1e-9 and cv_with <= LEAK_CAL_MAX_CV_RATIO * cv_without and 2 * agree > len(g_folds))
 
 
 def leakage_supported_by_holds(hold_supported: bool, cv_with: float, cv_without: float) -> bool:
@@ -857,6 +860,35 @@ class SelfSensingEstimator:
                                     f"beat a straight line out of sample ({chosen['cv_rms_mean_v']:.4g} V vs "
                                     f"{lin['cv_rms_mean_v']:.4g} V): expect poor force estimates")
                 log.warning(sel.warnings[-1])
+        if self.leakage_s_ and self._member_modes()["leakage"] == "auto" and not isinstance(model, LinearParamH):
+            # the leakage search's reference is a Preisach model (linear in its parameters); a selected H of another
+            # class (the Duhem model) may fit the calibration rows better without the leakage that the reference took
+            # up for its own misfit. The selected form's blocked CV decides: leakage is kept only when its error is not
+            # higher with g than without; else the calibration is repeated without leakage
+            check = self._leakage_check_with_selected(sel, cal_trials, cal, slope, dt, candidates, names)
+            drift_info["selected_form_check"] = check
+            if not check["kept"]:
+                # without leakage, the offset-drift decision is made again on the rows without it (leakage forced
+                # off: no search, the blocked CV with and without the drift columns at g = 0)
+                saved = self.members
+                self.members = {**dict(saved), "leakage": "off"}
+                try:
+                    _, off = self._leakage(cal_trials, cal, slope)
+                finally:
+                    self.members = saved
+                drift_info.update({"leakage_s": 0.0, "applied": False, "source": "none",
+                                   "cv_rms_v_with": off["cv_rms_v_with"],
+                                   **{k: off[k] for k in ("offset_drift_cv_rms_v_without", "offset_drift_applied",
+                                                          "offset_drift_source")}})
+                od_note = [x for x in off.get("note", "").split("; ") if x.startswith("offset-drift")]
+                drift_info["note"] = "; ".join([check["note"]] + od_note)
+                self.leakage_s_ = 0.0
+                self.offset_drift_ = bool(off["offset_drift_applied"])
+                qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, 0.0)
+                holds = self._hold_set(slope, drift_cols=self.offset_drift_)
+                sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
+                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds)
+                model = sel.model
         if self.offset_drift_:
             model, qs, ys, ex, sel.extra_coef, drift_info["joint_refit"] = self._refit_on_drift_free_charge(
                 model, sel, cal_trials, names, slope, dt, qs, ys, ex, holds)
@@ -880,6 +912,32 @@ class SelfSensingEstimator:
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
+
+    def _leakage_check_with_selected(self, sel, cal_trials, cal, slope, dt, candidates, names) -> dict:
+        """Blocked-CV error of the selected H(q) form on the calibration rows with the adopted leakage and without it
+        (the same folds, hold rows and extra columns as the selection; the charge and the H target change with g)."""
+        from selfsense.hysteresis.models.select import select_h_model
+
+        row = next(r for r in sel.table if r["selected"])
+        form = tuple((r["kind"], r["params"]) for r in sel.table if r["kind"] == "linear") + ((row["kind"],
+                                                                                              row["params"]),)
+        g = self.leakage_s_
+        qs0, ys0, ex0, free0, names0, _ = self._h_segments(cal_trials, cal, slope, 0.0)
+        self.leakage_s_ = 0.0
+        try:
+            holds0 = self._hold_set(slope, drift_cols=self.offset_drift_)
+        finally:
+            self.leakage_s_ = g
+        sel0 = select_h_model(qs0, ys0, dt, extras=ex0, free=free0, candidates=form, n_blocks=int(self.config.cv_blocks),
+                              trial_names=names0, holds=holds0)
+        cv_g = float(row["cv_rms_mean_v"])
+        cv_0 = float(next(r for r in sel0.table if r["label"] == row["label"])["cv_rms_mean_v"])
+        kept = bool(cv_g <= cv_0)
+        note = ("" if kept else
+                f"leakage {g * 1e9:.3g} nS not kept: the selected {row['label']} (not of the leakage search's "
+                f"reference class) has a lower blocked-CV error without it ({cv_0:.4g} V against {cv_g:.4g} V)")
+        return {"form": row["label"], "cv_rms_v_with": cv_g, "cv_rms_v_without": cv_0, "leakage_s": g, "kept": kept,
+                "note": note}
 
     def _hold_set(self, slope: float, drift_free: bool = False, drift_cols: bool = False):
         """The reference-free hold rows of every trial (:mod:`selfsense.hysteresis.models.holds`): each trial's
