@@ -50,6 +50,11 @@ DATES = {
     "stage_chain_duhem_linear": "2026-11-26",
     "stage_chain_relay_bound": "2026-11-27",
     "stage_chain_relay_bound_fresh": "2026-11-27",
+    "stage_chain_relay_bound_fresh400": "2026-11-27",
+    "stage_chain_fold_majority": "2026-11-27",
+    "stage_chain_fold_majority_fresh300": "2026-11-27",
+    "stage_chain_fold_majority_fresh400": "2026-11-27",
+    "whole_device_fold_majority": "2026-11-27",
     "tip_amplifier": "2026-11-26",
     "tip_stress": "2026-11-26",
     "tip_preload": "2026-11-27",
@@ -70,6 +75,8 @@ COMMANDS = {
                               "--out benchmarks/cross_device/whole_device/thesis_relay_fix",
     "whole_device_charge_resolution": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                                       "--out benchmarks/cross_device/whole_device/thesis_charge_resolution",
+    "whole_device_fold_majority": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
+                                  "--out benchmarks/cross_device/whole_device/thesis_fold_majority",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
@@ -97,6 +104,16 @@ COMMANDS = {
                                "--out benchmarks/stage_chain/thesis_relay_bound",
     "stage_chain_relay_bound_fresh": "python benchmarks/stage_chain.py devices --seeds 300-305 --hold-s 0 "
                                      "--out benchmarks/stage_chain/thesis_relay_bound_fresh",
+    # the code before the leakage fold majority (commit 6bad672) on seeds it never saw, as the "before" of the first
+    # contact below
+    "stage_chain_relay_bound_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
+                                        "--out benchmarks/stage_chain/thesis_relay_bound_fresh400",
+    "stage_chain_fold_majority": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                                 "--out benchmarks/stage_chain/fold_majority",
+    "stage_chain_fold_majority_fresh300": "python benchmarks/stage_chain.py devices --seeds 300-305 --hold-s 0 "
+                                          "--out benchmarks/stage_chain/fold_majority_fresh300",
+    "stage_chain_fold_majority_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
+                                          "--out benchmarks/stage_chain/fold_majority_fresh400",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -221,6 +238,7 @@ WHOLE_DUHEM = "benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linea
 WHOLE_RELAY = "benchmarks/cross_device/whole_device/thesis_relay_fix"
 WHOLE_ADC18 = "benchmarks/cross_device/whole_device/thesis_adc18"
 WHOLE_CRES = "benchmarks/cross_device/whole_device/thesis_charge_resolution"
+WHOLE_FM = "benchmarks/cross_device/whole_device/thesis_fold_majority"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -334,11 +352,18 @@ def cross_device_figures() -> list[Fig]:
             # the same seeds with the current code: the hold evidence gated by the charge resolution (1 of 50 records
             # changed); seeds 5-9 added with the same code (first contact, 10 devices per family and preset)
             + (_device_table_figures(f"{WHOLE_CRES}/cross_device.csv",
-                                     "whole-device randomisation, thesis calibration, current code (hold evidence "
-                                     "gated by the charge resolution), seeds 0-9 (5-9 scored once, first contact)",
+                                     "whole-device randomisation, thesis calibration, hold evidence gated by the "
+                                     "charge resolution (before the leakage fold majority), seeds 0-9 (5-9 scored "
+                                     "once, first contact)",
                                      COMMANDS["whole_device_charge_resolution"],
                                      DATES["whole_device_charge_resolution"])
                if (ROOT / WHOLE_CRES / "cross_device.csv").exists() else [])
+            # the same 100 devices with the current code: the leakage fold majority and the selected-form check
+            + (_device_table_figures(f"{WHOLE_FM}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, current code (leakage fold "
+                                     "majority and selected-form check), seeds 0-9",
+                                     COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"])
+               if (ROOT / WHOLE_FM / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
@@ -375,9 +400,18 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/thesis_duhem_linear/records.jsonl", ", with the Duhem linear term",
                 "stage_chain_duhem_linear"),
                ("benchmarks/stage_chain/thesis_relay_bound/records.jsonl", ", simulator relay fix and the holds' "
-                "bound on the calibration leakage (2026-11-27)", "stage_chain_relay_bound")]
-    fresh = ("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
-             "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh")
+                "bound on the calibration leakage (2026-11-27)", "stage_chain_relay_bound"),
+               ("benchmarks/stage_chain/fold_majority/records.jsonl", ", leakage fold majority and selected-form "
+                "check (current code)", "stage_chain_fold_majority")]
+    # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
+    fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
+              "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
+             ("benchmarks/stage_chain/fold_majority_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
+              "code", "stage_chain_fold_majority_fresh300"),
+             ("benchmarks/stage_chain/thesis_relay_bound_fresh400/records.jsonl", ", fresh seeds 400-405, the code "
+              "before the fold majority", "stage_chain_relay_bound_fresh400"),
+             ("benchmarks/stage_chain/fold_majority_fresh400/records.jsonl", ", fresh seeds 400-405, current code "
+              "(first contact)", "stage_chain_fold_majority_fresh400")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -401,9 +435,10 @@ def stage_chain_figures() -> list[Fig]:
                        families=",".join(sorted(f for f, v in newest.items() if v[1] == source))), DATES[key])
 
     out = [row(recs, fam, what, rel, key) for fam, (recs, rel, what, key) in sorted(newest.items())]
-    if (ROOT / fresh[0]).exists():
-        recs = load(fresh[0])
-        out += [row(recs, fam, fresh[1], fresh[0], fresh[2]) for fam in sorted({r["family"] for r in recs})]
+    for rel, what, key in fresh:
+        if (ROOT / rel).exists():
+            recs = load(rel)
+            out += [row(recs, fam, what, rel, key) for fam in sorted({r["family"] for r in recs})]
     return out
 
 

@@ -21,8 +21,9 @@ from selfsense import stages
 ROOT = Path(__file__).resolve().parents[2]
 #: Table 3 of tweezer_sim (displacement, force, % of range) measured with the default configuration on this
 #: project's machine (`selfsense run --cores 2`; benchmarks/RESULTS.md, the README's table); the sample's figures
-#: and the tolerance are the suite's (tests/conftest.py)
-TWEEZER_SIM = {"displacement": 1.93, "force": 3.62}
+#: and the tolerance are the suite's (tests/conftest.py). 1.93 until the leakage fold majority (2026-11-27) adopted
+#: 1.62 nS of leakage on it (0.5 nS simulated): docs/method.md 6c
+TWEEZER_SIM = {"displacement": 2.05, "force": 3.62}
 
 
 def _table3(dataset: str, tmp: Path) -> pd.Series:

@@ -182,6 +182,16 @@ def test_leakage_is_checked_with_a_selected_form_outside_the_search_reference():
     assert not check["kept"] and check["cv_rms_v_without"] < check["cv_rms_v_with"]
     assert est.leakage_s_ == 0.0 and not drift["applied"] and "not kept" in drift["note"]
     assert est.hysteresis_.kind == "duhem"
+    # the offset-drift decision is the one made on the rows without leakage (as if leakage had not been adopted)
+    off = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"leakage": "off"})
+    with tempfile.TemporaryDirectory() as tmp:
+        ds, rig, meta, sigs = _dataset(sc, tmp)
+        off.fit_hysteresis(sigs, meta)
+    d_off = off.fit_report_["hysteresis"]["drift"]
+    assert est.offset_drift_ == off.offset_drift_ == drift["offset_drift_applied"]
+    assert drift["offset_drift_cv_rms_v_without"] == d_off["offset_drift_cv_rms_v_without"]
+    q = sigs["cal_free_sine"]["q"].to_numpy()
+    assert np.array_equal(est.hysteresis_.predict(q), off.hysteresis_.predict(q))
 
 
 def test_rest_segments_recover_an_injected_offset_drift():
