@@ -79,7 +79,9 @@ def test_member_lowers_table3_and_leaves_the_twin_bit_identical(absorbing, twin)
     tr, me, rig, _ = absorbing
     on = _summary(tip_table(tr, me, rig, None, estimator=_fit(tr, me, rig, "auto")))["mean"]
     off = _summary(tip_table(tr, me, rig, None, estimator=_fit(tr, me, rig, "off")))["mean"]
-    assert on < 0.6 * off                                # measured 6.60 against 14.33 (twin 4.55)
+    # measured 6.60 against 10.78 (twin 4.55); 14.33 before the leakage fold majority (docs/method.md 6c): without
+    # the member the calibration now adopts 20 nS of leakage, which takes up part of the absorbed charge
+    assert on < 0.7 * off
     tr0, me0, rig0 = twin
     a, b = _fit(tr0, me0, rig0, "auto"), _fit(tr0, me0, rig0, "off")
     assert not a.absorption_["applied"]
