@@ -477,7 +477,7 @@ class SelfSensingEstimator:
     #: searched again, when it was made on the same calibration inputs (``inputs_sha256``: the charge, voltage, force
     #: and relay of the calibration trials and the gauge slope, bit for bit). The search does not depend on the
     #: configured H(q) or on the forced members, so the gap diagnostic's recalibrations that change only a member
-    #: and ``compare_modes`` pass the pipeline's; a fit on other inputs ignores it and searches
+    #: pass the pipeline's; a fit on other inputs ignores it and searches
     leakage_search_reuse: Mapping | None = None
 
     # fitted
@@ -662,7 +662,7 @@ class SelfSensingEstimator:
         trials: g in 0..50 nS (beyond, where the data reach that bound) is the value for which a reference Preisach
         model (12 x 12 grid + 6 plays + creep, with the per-trial drift columns) fits the joint calibration rows best
         on the corrected charge ``Q - g int V dt`` (bounded scalar search of the least-squares residual). Leakage is applied when the calibration rows support
-        it (blocked-CV error not higher, leave-one-block-out estimates within 50 %) or when the reference-free holds
+        it (blocked-CV error not higher, a majority of the leave-one-block-out estimates within 50 %) or when the reference-free holds
         of every trial do (:func:`selfsense.chain.charge.hold_evidence`, then with the hold-estimated g, provided the
         calibration rows' blocked-CV error grows by at most 2 %; when both support it, the estimate with the lower
         calibration error). A calibration g more than 1.5x the conductance the holds measure (z >= 4 at >= 2 levels, even
@@ -733,8 +733,8 @@ class SelfSensingEstimator:
                 "search": {"inputs_sha256": key, "g_cal": g_cal, "g_folds": g_folds, "cv_without": base,
                            "cv_with_g_cal": best_cal, "reused": reused}}
         notes = []
-        # supported by the calibration rows when it does not worsen their blocked CV and the leave-one-block-out
-        # estimates agree within 50 %
+        # supported by the calibration rows when it does not worsen their blocked CV and a majority of the
+        # leave-one-block-out estimates agree within 50 %
         cal_ok = modes["leakage"] == "auto" and leakage_supported_by_calibration(g_cal, g_folds, best_cal, base)
         # the calibration rows' g must not exceed what the holds of every trial measure by more than 1.5x; where it
         # does, the holds' conductance takes its place, provided the calibration rows' blocked CV is not higher with
@@ -865,7 +865,7 @@ class SelfSensingEstimator:
             # class (the Duhem model) may fit the calibration rows better without the leakage that the reference took
             # up for its own misfit. The selected form's blocked CV decides: leakage is kept only when its error is not
             # higher with g than without; else the calibration is repeated without leakage
-            check = self._leakage_check_with_selected(sel, cal_trials, cal, slope, dt, candidates, names)
+            check = self._leakage_check_with_selected(sel, cal_trials, cal, slope, dt)
             drift_info["selected_form_check"] = check
             if not check["kept"]:
                 # without leakage, the offset-drift decision is made again on the rows without it (leakage forced
@@ -913,7 +913,7 @@ class SelfSensingEstimator:
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
 
-    def _leakage_check_with_selected(self, sel, cal_trials, cal, slope, dt, candidates, names) -> dict:
+    def _leakage_check_with_selected(self, sel, cal_trials, cal, slope, dt) -> dict:
         """Blocked-CV error of the selected H(q) form on the calibration rows with the adopted leakage and without it
         (the same folds, hold rows and extra columns as the selection; the charge and the H target change with g)."""
         from selfsense.hysteresis.models.select import select_h_model
