@@ -869,13 +869,15 @@ class SelfSensingEstimator:
             drift_info["selected_form_check"] = check
             if not check["kept"]:
                 # without leakage, the offset-drift decision is made again on the rows without it (leakage forced
-                # off: no search, the blocked CV with and without the drift columns at g = 0)
-                saved = self.members
+                # off: no search, the blocked CV with and without the drift columns at g = 0; the error without
+                # leakage is taken from this fit's own search, same inputs)
+                saved, saved_reuse = self.members, self.leakage_search_reuse
                 self.members = {**dict(saved), "leakage": "off"}
+                self.leakage_search_reuse = drift_info["search"]
                 try:
                     _, off = self._leakage(cal_trials, cal, slope)
                 finally:
-                    self.members = saved
+                    self.members, self.leakage_search_reuse = saved, saved_reuse
                 drift_info.update({"leakage_s": 0.0, "applied": False, "source": "none",
                                    "cv_rms_v_with": off["cv_rms_v_with"],
                                    **{k: off[k] for k in ("offset_drift_cv_rms_v_without", "offset_drift_applied",
