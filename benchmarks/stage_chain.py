@@ -82,7 +82,9 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "leakage_ns": float(est.leakage_s_ * 1e9),
             "leakage_source": d.get("source", "calibration" if d.get("applied") else "none"),
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
-            "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False))}
+            "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False)),
+            "selected_form_check": {k: d["selected_form_check"][k] for k in ("form", "kept")}
+            if d.get("selected_form_check") else None}
 
 
 def summary_devices(recs: list[dict]) -> str:

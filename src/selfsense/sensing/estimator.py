@@ -860,11 +860,13 @@ class SelfSensingEstimator:
                                     f"beat a straight line out of sample ({chosen['cv_rms_mean_v']:.4g} V vs "
                                     f"{lin['cv_rms_mean_v']:.4g} V): expect poor force estimates")
                 log.warning(sel.warnings[-1])
-        if self.leakage_s_ and self._member_modes()["leakage"] == "auto" and not isinstance(model, LinearParamH):
+        if self.leakage_s_ and self._member_modes()["leakage"] == "auto" and not isinstance(model, LinearParamH) \
+                and drift_info.get("source") == "calibration":
             # the leakage search's reference is a Preisach model (linear in its parameters); a selected H of another
             # class (the Duhem model) may fit the calibration rows better without the leakage that the reference took
             # up for its own misfit. The selected form's blocked CV decides: leakage is kept only when its error is not
-            # higher with g than without; else the calibration is repeated without leakage
+            # higher with g than without; else the calibration is repeated without leakage. A g measured by the holds
+            # of every trial (reference-free: V and Q only, no H model) is not the search's and is not re-checked
             check = self._leakage_check_with_selected(sel, cal_trials, cal, slope, dt)
             drift_info["selected_form_check"] = check
             if not check["kept"]:
