@@ -52,9 +52,12 @@ DATES = {
     "stage_chain_relay_bound_fresh": "2026-11-27",
     "stage_chain_relay_bound_fresh400": "2026-11-27",
     "stage_chain_fold_majority": "2026-11-27",
-    "stage_chain_fold_majority_fresh300": "2026-11-27",
     "stage_chain_fold_majority_fresh400": "2026-11-27",
     "whole_device_fold_majority": "2026-11-27",
+    "stage_chain_holds_g": "2026-11-27",
+    "stage_chain_holds_g_fresh300": "2026-11-27",
+    "stage_chain_holds_g_fresh400": "2026-11-27",
+    "whole_device_holds_g": "2026-11-27",
     "tip_amplifier": "2026-11-26",
     "tip_stress": "2026-11-26",
     "tip_preload": "2026-11-27",
@@ -77,6 +80,8 @@ COMMANDS = {
                                       "--out benchmarks/cross_device/whole_device/thesis_charge_resolution",
     "whole_device_fold_majority": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                                   "--out benchmarks/cross_device/whole_device/thesis_fold_majority",
+    "whole_device_holds_g": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
+                            "--out benchmarks/cross_device/whole_device/thesis_holds_g",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
@@ -110,10 +115,14 @@ COMMANDS = {
                                         "--out benchmarks/stage_chain/thesis_relay_bound_fresh400",
     "stage_chain_fold_majority": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
                                  "--out benchmarks/stage_chain/fold_majority",
-    "stage_chain_fold_majority_fresh300": "python benchmarks/stage_chain.py devices --seeds 300-305 --hold-s 0 "
-                                          "--out benchmarks/stage_chain/fold_majority_fresh300",
     "stage_chain_fold_majority_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
                                           "--out benchmarks/stage_chain/fold_majority_fresh400",
+    "stage_chain_holds_g": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                           "--out benchmarks/stage_chain/holds_g",
+    "stage_chain_holds_g_fresh300": "python benchmarks/stage_chain.py devices --seeds 300-305 --hold-s 0 "
+                                    "--out benchmarks/stage_chain/holds_g_fresh300",
+    "stage_chain_holds_g_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
+                                    "--out benchmarks/stage_chain/holds_g_fresh400",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -141,11 +150,13 @@ PAGES = ["README.md", "docs/benchmarks.md", "docs/cross_device.md", "docs/gap.md
 
 
 class Fig:
-    """One measured figure: what, value (as printed), target, status, source file, command, date."""
+    """One measured figure: what, value (as printed), target, status, source file, command, date. ``history``: an
+    intermediate scoring of a benchmark (neither its first contact nor the current code's), listed in
+    benchmarks/FIGURES.md and the docs pages but not in the README's table."""
 
-    def __init__(self, label, value, target="", status="", source="", command="", date=""):
+    def __init__(self, label, value, target="", status="", source="", command="", date="", history=False):
         self.label, self.value, self.target, self.status = label, value, target, status
-        self.source, self.command, self.date = source, command, date
+        self.source, self.command, self.date, self.history = source, command, date, history
 
     def row(self, with_source: bool = True) -> str:
         cells = [self.label, self.value, self.target, self.status]
@@ -215,7 +226,7 @@ def _pct(cell: str) -> str:
 
 
 def _device_table_figures(src: str, what: str, command: str, date: str,
-                          superseded: dict[tuple[str, str], str] | None = None) -> list[Fig]:
+                          superseded: dict[tuple[str, str], str] | None = None, history: bool = False) -> list[Fig]:
     """One row per family and preset of a ``selfsense devices bench`` table (``cross_device.csv``): median (p90)
     displacement / force against the targets (clean 5 / 8 %, drift 8 / 12 %); ``what`` names the benchmark case.
     ``superseded`` maps (family, preset) to a note saying which later row replaces that row (its figures stay)."""
@@ -229,7 +240,8 @@ def _device_table_figures(src: str, what: str, command: str, date: str,
                        + (f"; **superseded**: {note}" if note else ""),
                        f"{dm:.2f} ({float(r['displacement_p90_pct']):.2f}) / {fm:.2f} "
                        f"({float(r['force_p90_pct']):.2f}) %", f"{tgt[0]} / {tgt[1]} %",
-                       _met(dm <= tgt[0] and fm <= tgt[1]) + (" (superseded)" if note else ""), src, command, date))
+                       _met(dm <= tgt[0] and fm <= tgt[1]) + (" (superseded)" if note else ""), src, command, date,
+                       history=history))
     return out
 
 
@@ -239,6 +251,7 @@ WHOLE_RELAY = "benchmarks/cross_device/whole_device/thesis_relay_fix"
 WHOLE_ADC18 = "benchmarks/cross_device/whole_device/thesis_adc18"
 WHOLE_CRES = "benchmarks/cross_device/whole_device/thesis_charge_resolution"
 WHOLE_FM = "benchmarks/cross_device/whole_device/thesis_fold_majority"
+WHOLE_HG = "benchmarks/cross_device/whole_device/thesis_holds_g"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -306,7 +319,7 @@ def duhem_linear_figures(groups: dict[tuple[str, str], dict]) -> list[Fig]:
                        f"({int(new['n_failed'])} failed): median (p90) displacement / force; {then}",
                        f"{dm:.2f} ({new['displacement_p90_pct']:.2f}) / {fm:.2f} ({new['force_p90_pct']:.2f}) %",
                        f"{tgt[0]} / {tgt[1]} %", _met(dm <= tgt[0] and fm <= tgt[1]), f"{WHOLE_DUHEM}/records", cmd,
-                       DATES["whole_device_duhem_linear"]))
+                       DATES["whole_device_duhem_linear"], history=True))
     return out
 
 
@@ -339,7 +352,7 @@ def cross_device_figures() -> list[Fig]:
             + _device_table_figures(f"{WHOLE_HOLD}/cross_device.csv",
                                     "whole-device randomisation, thesis calibration, with the hold rows",
                                     COMMANDS["whole_device_hold_rows"], DATES["whole_device_hold_rows"],
-                                    superseded=superseded)
+                                    superseded=superseded, history=True)
             # the clean devices rescored after the Duhem model got its own linear term
             + duhem_linear_figures(groups)
             # seeds 0-4 of all five families and both presets with the current code: the simulator's relay fix
@@ -347,7 +360,7 @@ def cross_device_figures() -> list[Fig]:
             + (_device_table_figures(f"{WHOLE_RELAY}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, after the simulator relay fix "
                                      "and the holds' bound on the calibration leakage, seeds 0-4",
-                                     COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"])
+                                     COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"], history=True)
                if (ROOT / WHOLE_RELAY / "cross_device.csv").exists() else [])
             # the same seeds with the current code: the hold evidence gated by the charge resolution (1 of 50 records
             # changed); seeds 5-9 added with the same code (first contact, 10 devices per family and preset)
@@ -356,14 +369,21 @@ def cross_device_figures() -> list[Fig]:
                                      "charge resolution (before the leakage fold majority), seeds 0-9 (5-9 scored "
                                      "once, first contact)",
                                      COMMANDS["whole_device_charge_resolution"],
-                                     DATES["whole_device_charge_resolution"])
+                                     DATES["whole_device_charge_resolution"], history=True)
                if (ROOT / WHOLE_CRES / "cross_device.csv").exists() else [])
-            # the same 100 devices with the current code: the leakage fold majority and the selected-form check
+            # the same 100 devices with the leakage fold majority and the selected-form check
             + (_device_table_figures(f"{WHOLE_FM}/cross_device.csv",
-                                     "whole-device randomisation, thesis calibration, current code (leakage fold "
-                                     "majority and selected-form check), seeds 0-9",
-                                     COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"])
+                                     "whole-device randomisation, thesis calibration, leakage fold majority and "
+                                     "selected-form check (before the holds' g was exempt from it), seeds 0-9",
+                                     COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"],
+                                     history=True)
                if (ROOT / WHOLE_FM / "cross_device.csv").exists() else [])
+            # the same 100 devices with the current code: a g the holds measure is not re-checked by the selected form
+            + (_device_table_figures(f"{WHOLE_HG}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, current code (the holds' "
+                                     "leakage exempt from the selected-form check), seeds 0-9",
+                                     COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])
+               if (ROOT / WHOLE_HG / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
@@ -402,16 +422,20 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/thesis_relay_bound/records.jsonl", ", simulator relay fix and the holds' "
                 "bound on the calibration leakage (2026-11-27)", "stage_chain_relay_bound"),
                ("benchmarks/stage_chain/fold_majority/records.jsonl", ", leakage fold majority and selected-form "
-                "check (current code)", "stage_chain_fold_majority")]
+                "check", "stage_chain_fold_majority"),
+               ("benchmarks/stage_chain/holds_g/records.jsonl", ", the holds' leakage exempt from the selected-form "
+                "check (current code)", "stage_chain_holds_g")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
-             ("benchmarks/stage_chain/fold_majority_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
-              "code", "stage_chain_fold_majority_fresh300"),
+             ("benchmarks/stage_chain/holds_g_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
+              "code", "stage_chain_holds_g_fresh300"),
              ("benchmarks/stage_chain/thesis_relay_bound_fresh400/records.jsonl", ", fresh seeds 400-405, the code "
               "before the fold majority", "stage_chain_relay_bound_fresh400"),
-             ("benchmarks/stage_chain/fold_majority_fresh400/records.jsonl", ", fresh seeds 400-405, current code "
-              "(first contact)", "stage_chain_fold_majority_fresh400")]
+             ("benchmarks/stage_chain/fold_majority_fresh400/records.jsonl", ", fresh seeds 400-405, leakage fold "
+              "majority (its first contact)", "stage_chain_fold_majority_fresh400"),
+             ("benchmarks/stage_chain/holds_g_fresh400/records.jsonl", ", seeds 400-405 (seen once), current code",
+              "stage_chain_holds_g_fresh400")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -419,7 +443,7 @@ def stage_chain_figures() -> list[Fig]:
             for fam in {r["family"] for r in recs}:
                 newest[fam] = (recs, rel, what, key)
 
-    def row(rs, fam, what, source, key):
+    def row(rs, fam, what, source, key, history=False):
         med = {}
         for p in ("clean", "drift"):
             v = [r for r in rs if r["family"] == fam and r["preset"] == p]
@@ -432,13 +456,18 @@ def stage_chain_figures() -> list[Fig]:
                    f"{med['clean'][0]:.2f} / {med['clean'][1]:.2f} %; {med['drift'][0]:.2f} / "
                    f"{med['drift'][1]:.2f} % (drift / clean {rd:.2f}, {rf:.2f})",
                    "drift / clean <= 1.3 and drift <= clean + 2 points", _met(ok), source, COMMANDS[key].format(
-                       families=",".join(sorted(f for f, v in newest.items() if v[1] == source))), DATES[key])
+                       families=",".join(sorted(f for f, v in newest.items() if v[1] == source))), DATES[key],
+                   history=history)
 
     out = [row(recs, fam, what, rel, key) for fam, (recs, rel, what, key) in sorted(newest.items())]
+    # on each fresh seed set: its first contact and the current code; the scorings between them are history
+    current = {"stage_chain_relay_bound_fresh", "stage_chain_holds_g_fresh300", "stage_chain_fold_majority_fresh400",
+               "stage_chain_holds_g_fresh400"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)
-            out += [row(recs, fam, what, rel, key) for fam in sorted({r["family"] for r in recs})]
+            out += [row(recs, fam, what, rel, key, history=key not in current)
+                    for fam in sorted({r["family"] for r in recs})]
     return out
 
 
@@ -699,19 +728,23 @@ def render_block(name: str, figs: dict[str, list[Fig]]) -> str:
     for g in groups:
         if g not in figs:
             raise SystemExit(f"benchmarks/figures.py: unknown figure block {name!r} (groups: {', '.join(TITLES)})")
-    rows, sources = [HEAD], []
+    rows, sources, n_history = [HEAD], [], 0
     for g in groups:
-        if not figs[g]:
+        shown = [f for f in figs[g] if not (name == "all" and f.history)]
+        n_history += len(figs[g]) - len(shown)
+        if not shown:
             continue
         if len(groups) > 1:
             rows.append(f"| **{TITLES[g]}** | | | |")
-        rows += [f.row(with_source=False) for f in figs[g]]
-        for f in figs[g]:
+        rows += [f.row(with_source=False) for f in shown]
+        for f in shown:
             src = f"`{f.command}` ({f.date}; [{f.source}](../{f.source}))"
             if src not in sources:
                 sources.append(src)
     lead = ("Generated by `python benchmarks/figures.py` from the benchmark outputs (do not edit by hand); every row's "
-            "source, command and date: [benchmarks/FIGURES.md](../benchmarks/FIGURES.md).")
+            "source, command and date: [benchmarks/FIGURES.md](../benchmarks/FIGURES.md)."
+            + (f" Each benchmark's first contact and its score with the current code are shown; {n_history} rows of "
+               "scorings in between are in benchmarks/FIGURES.md and docs/cross_device.md." if n_history else ""))
     return "\n".join([lead, "", *rows, "", "Measured by:", *[f"- {x}" for x in sources]]) + "\n"
 
 

@@ -46,6 +46,21 @@ def test_every_figure_block_is_filled_and_the_readme_quotes_all_groups():
             assert "| figure | measured | target | status |" in m.group(0), f"{page.name}: empty block {m.group(1)}"
 
 
+def test_the_readme_shows_first_contact_and_current_rows_the_docs_every_scoring():
+    """The README's table keeps each benchmark's first contact and its current-code score; the scorings in between
+    are in benchmarks/FIGURES.md and the docs page of the benchmark, never dropped from both."""
+    readme = BLOCK.search((ROOT / "README.md").read_text()).group(0)
+    docs = (ROOT / "docs" / "cross_device.md").read_text()
+    figures_md = (ROOT / "benchmarks" / "FIGURES.md").read_text()
+    first = "whole-device randomisation, thesis calibration, first contact"
+    between = "whole-device randomisation, thesis calibration, with the hold rows"
+    assert first in readme and first in docs
+    assert between not in readme and between in docs and between in figures_md
+    n = int(re.search(r"(\d+) rows of scorings in between", readme).group(1))
+    rows = lambda text: {x.split(" | ")[0] for x in text.splitlines() if x.startswith("| ") and " | " in x}  # noqa: E731
+    assert len(rows(figures_md) - rows(readme)) >= n > 0
+
+
 @pytest.mark.parametrize("page", _pages(), ids=lambda p: p.name)
 def test_no_measured_figure_is_written_by_hand_outside_the_generated_blocks(page):
     outside = BLOCK.sub("", page.read_text())
