@@ -516,10 +516,11 @@ def gap_figures() -> list[Fig]:
          "was given a predicted shrink of 0 (an error of 1 by construction); the seed-90210 rows replace it"),
         ("benchmarks/gap_tip/seed_90210", "gap_tip_90210",
          "; made before the absorption member of the charge link (its absorption cases rescored with it below); the "
-         "seed-27182 rows are the current code"),
+         "later campaigns are seeds 27182 and 14142"),
         ("benchmarks/gap_tip/seed_27182", "gap_tip_27182",
          "; made before the gap diagnostic's blocked-tip stage (stress-dependent hysteresis) and the temperature "
-         "member's null floor; the seed-14142 rows are the current code"),
+         "member's null floor; the seed-14142 rows are the newest campaign (2026-11-26, before the simulator's relay "
+         "fix and the leakage changes of 2026-11-27)"),
         ("benchmarks/gap_tip/seed_14142", "gap_tip_14142", ""),
     ], "tip_scores.json")
     recs = []
