@@ -245,6 +245,21 @@ def _device_table_figures(src: str, what: str, command: str, date: str,
     return out
 
 
+def _worst_best_fig(src: str, what: str, command: str, date: str, history: bool = False) -> Fig:
+    """The worst / best family ratio of the medians of a ``selfsense devices bench`` table, per preset and measurement
+    (issue target: <= 2)."""
+    rows = list(csv.DictReader((ROOT / src).open()))
+    ratios = {}
+    for pre in ("clean", "drift"):
+        for m in ("displacement", "force"):
+            v = [float(r[f"{m}_median_pct"]) for r in rows if r["preset"] == pre]
+            ratios[(pre, m)] = max(v) / min(v)
+    val = "; ".join(f"{pre} {ratios[(pre, 'displacement')]:.2f} / {ratios[(pre, 'force')]:.2f}"
+                    for pre in ("clean", "drift"))
+    return Fig(f"{what}: worst / best family of the median displacement / force", val, "<= 2",
+               _met(all(x <= 2 for x in ratios.values())), src, command, date, history=history)
+
+
 WHOLE_HOLD = "benchmarks/cross_device/whole_device/thesis_hold_rows"
 WHOLE_DUHEM = "benchmarks/cross_device/whole_device/thesis_hold_rows_duhem_linear"
 WHOLE_RELAY = "benchmarks/cross_device/whole_device/thesis_relay_fix"
@@ -347,6 +362,9 @@ def cross_device_figures() -> list[Fig]:
             + _device_table_figures("benchmarks/cross_device/whole_device/thesis/cross_device.csv",
                                     "whole-device randomisation, thesis calibration, first contact",
                                     COMMANDS["whole_device"], DATES["whole_device"])
+            + [_worst_best_fig("benchmarks/cross_device/whole_device/thesis/cross_device.csv",
+                               "whole-device randomisation, thesis calibration, first contact", COMMANDS["whole_device"],
+                               DATES["whole_device"])]
             # the same 100 devices scored again after the hold rows of the H(q) fit (docs/method.md 6b'); a family's
             # row is superseded where the Duhem linear term changed any of its rescored devices' records
             + _device_table_figures(f"{WHOLE_HOLD}/cross_device.csv",
@@ -383,6 +401,9 @@ def cross_device_figures() -> list[Fig]:
                                      "whole-device randomisation, thesis calibration, current code (the holds' "
                                      "leakage exempt from the selected-form check), seeds 0-9",
                                      COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])
+               + [_worst_best_fig(f"{WHOLE_HG}/cross_device.csv", "whole-device randomisation, thesis calibration, "
+                                  "current code, five families, 10 devices each", COMMANDS["whole_device_holds_g"],
+                                  DATES["whole_device_holds_g"])]
                if (ROOT / WHOLE_HG / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
