@@ -58,6 +58,7 @@ DATES = {
     "stage_chain_holds_g_fresh300": "2026-11-27",
     "stage_chain_holds_g_fresh400": "2026-11-27",
     "whole_device_holds_g": "2026-11-27",
+    "whole_device_quantiser": "2026-11-27",
     "tip_amplifier": "2026-11-26",
     "tip_stress": "2026-11-26",
     "tip_preload": "2026-11-27",
@@ -82,6 +83,10 @@ COMMANDS = {
                                   "--out benchmarks/cross_device/whole_device/thesis_fold_majority",
     "whole_device_holds_g": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                             "--out benchmarks/cross_device/whole_device/thesis_holds_g",
+    # the 27 devices on which the quantiser member is adopted scored again (their records deleted from a copy of
+    # thesis_holds_g, the folder resumed); the other 73 records are carried over: the member leaves their fit unchanged
+    "whole_device_quantiser": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
+                              "--out benchmarks/cross_device/whole_device/thesis_quantiser",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
@@ -267,6 +272,7 @@ WHOLE_ADC18 = "benchmarks/cross_device/whole_device/thesis_adc18"
 WHOLE_CRES = "benchmarks/cross_device/whole_device/thesis_charge_resolution"
 WHOLE_FM = "benchmarks/cross_device/whole_device/thesis_fold_majority"
 WHOLE_HG = "benchmarks/cross_device/whole_device/thesis_holds_g"
+WHOLE_QZ = "benchmarks/cross_device/whole_device/thesis_quantiser"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -396,15 +402,24 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"],
                                      history=True)
                if (ROOT / WHOLE_FM / "cross_device.csv").exists() else [])
-            # the same 100 devices with the current code: a g the holds measure is not re-checked by the selected form
+            # the same 100 devices: a g the holds measure is not re-checked by the selected form
             + (_device_table_figures(f"{WHOLE_HG}/cross_device.csv",
-                                     "whole-device randomisation, thesis calibration, current code (the holds' "
-                                     "leakage exempt from the selected-form check), seeds 0-9",
-                                     COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])
+                                     "whole-device randomisation, thesis calibration, the holds' leakage exempt from "
+                                     "the selected-form check (before the quantiser member), seeds 0-9",
+                                     COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"], history=True)
                + [_worst_best_fig(f"{WHOLE_HG}/cross_device.csv", "whole-device randomisation, thesis calibration, "
-                                  "current code, five families, 10 devices each", COMMANDS["whole_device_holds_g"],
-                                  DATES["whole_device_holds_g"])]
+                                  "before the quantiser member, five families, 10 devices each",
+                                  COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"], history=True)]
                if (ROOT / WHOLE_HG / "cross_device.csv").exists() else [])
+            # the same 100 devices with the current code: the quantiser member of the charge link (docs/method.md 1b')
+            + (_device_table_figures(f"{WHOLE_QZ}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, current code (the quantiser "
+                                     "member), seeds 0-9",
+                                     COMMANDS["whole_device_quantiser"], DATES["whole_device_quantiser"])
+               + [_worst_best_fig(f"{WHOLE_QZ}/cross_device.csv", "whole-device randomisation, thesis calibration, "
+                                  "current code, five families, 10 devices each", COMMANDS["whole_device_quantiser"],
+                                  DATES["whole_device_quantiser"])]
+               if (ROOT / WHOLE_QZ / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",

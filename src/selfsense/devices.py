@@ -105,6 +105,8 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "charge_resolution_dx_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_dx_pct", 0.0)),
         "charge_resolution_f_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_f_pct", 0.0)),
         "charge_resolution_h_v": float(est.fit_report_.get("charge_resolution", {}).get("calibration_h_target_v", 0.0)),
+        "quantiser": bool((est.quantiser_ or {}).get("applied", False)),
+        "quantiser_i_q_na": float((est.quantiser_ or {}).get("i_q_a", 0.0)) * 1e9,
         "regression": str(est.fit_report_.get("regression_form", "")),
         "warnings": list(est.fit_report_.get("warnings", [])),
     })

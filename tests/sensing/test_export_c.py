@@ -20,6 +20,7 @@ from selfsense.sensing import SelfSensingEstimator
 from selfsense.sensing.estimator import GaugedH, _rig_params
 from selfsense.sensing.export_c import ExportError, export_c
 from selfsense.sensing.streaming import SelfSensingStream
+from selfsense.signals import relay_offset
 
 from selfsense import io as sio
 from selfsense import stages
@@ -80,10 +81,19 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
-        # every member the C code carries: absorption, leakage, rest offset, sliding offset (dx and f), limiting
+        # every member the C code carries: quantiser, absorption, leakage, rest offset, sliding offset (dx and f),
+        # limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
         pr = _rig_params(rig)
         est.absorption_ = {"applied": True, "c_f": 0.02 * pr["n_A"] * pr["C_p"], "tau_s": 1.5}
+        # the quantiser member: a threshold midway between two distinct deviations of V_s from the short's mean (no
+        # sample sits on it), a current of 1 % of the largest shunt current
+        cal = sigs["cal_free"]
+        vs, rel = cal["V_s"].to_numpy(), cal["relay"].to_numpy()
+        dev = np.unique(np.abs(vs - relay_offset(vs, rel))[rel < 0.5])
+        k = len(dev) // 2
+        i_max = float(np.max(np.abs(np.diff(cal["q"].to_numpy()) / np.diff(cal["t"].to_numpy()))))
+        est.quantiser_ = {"applied": True, "half_step_v": 0.5 * (dev[k] + dev[k + 1]), "i_q_a": 0.01 * i_max}
         est.config.dc_offset = est.config.dc_offset_force = True
         out[name] = est
     h = out["modified_pi (thesis)"].hysteresis_   # a model file written before ModifiedPIH holds a GaugedH

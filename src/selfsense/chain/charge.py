@@ -42,7 +42,8 @@ import pandas as pd
 
 __all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "DITHER_MIN_STEPS", "RELAX_TAUS_S",
            "Z_SUPPORT", "AbsorptionFit", "ChargeResolution", "HoldEvidence", "absorption_column", "charge_resolution",
-           "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step"]
+           "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step", "QUANTISER_CV_RATIO",
+           "quantiser_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -627,3 +628,39 @@ def charge_resolution(df: pd.DataFrame, R: float) -> tuple[ChargeResolution, np.
                 f"constant ({unresolved:.3g} s of relay short and holds): the charge error reaches "
                 f"{res.sigma_q_end_c * 1e6:.3g} uC (1 SD) by the end of the trial")
     return res, sig
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# The quantiser member: the short's offset error of an undithered shunt channel
+# --------------------------------------------------------------------------------------------------------------------
+
+#: the quantiser member is adopted when the calibration rows' blocked-CV error of the reference model with the
+#: searched current is below this fraction of the error without it (docs/method.md 1b')
+QUANTISER_CV_RATIO = 0.95
+
+
+def quantiser_column(df: pd.DataFrame, half_step_v: float) -> np.ndarray:
+    """``int m dt`` [s], restarted wherever the relay shorts the leads (like the charge, thesis eq. 57), with ``m`` = 1
+    on the relay-open samples whose shunt voltage reads another ADC code than the short: ``|V_s - offset| >
+    half_step_v``, ``offset`` the mean of ``V_s`` over the first shorted segment (what the charge integration
+    subtracts, :func:`selfsense.signals.relay_offset`).
+
+    Where the noise does not dither the quantiser (:func:`charge_resolution`), the short reads one code and the
+    subtracted offset is off from the in-amp's true one by up to half a step, ``e``. A sample that reads the short's
+    code carries no current whatever the actuator does (0 after the subtraction), so it also carries none of that
+    error; a sample that reads another code (the drive moves the current across the steps) carries the true current
+    plus ``e / R``. The charge error is then ``(e / R) * quantiser_column``, one current for the device (the in-amp's
+    offset and the short's code are the same in every trial); measured on a 13-bit whole-device Preisach device, the
+    measured-minus-true charge of every trial follows this column with R^2 0.98-1.00, where a ramp in time gives
+    0.96 on the trials with long holds (docs/method.md 1b'). Returns zeros without a ``V_s`` column or a relay short."""
+    from selfsense.signals import charge_from_shunt, relay_offset
+
+    t = df["t"].to_numpy(dtype=float)
+    relay = (df["relay"].to_numpy(dtype=float) >= 0.5).astype(float)
+    if "V_s" not in df or not (relay > 0).any():
+        return np.zeros(len(t))
+    Vs = df["V_s"].to_numpy(dtype=float)
+    off = relay_offset(Vs, relay)
+    m = ((relay < 0.5) & (np.abs(Vs - off) > float(half_step_v))).astype(float)
+    col, _ = charge_from_shunt(t, m, relay, 1.0, offset=None)
+    return col

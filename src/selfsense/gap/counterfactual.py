@@ -163,7 +163,8 @@ def adopted_members(fitted) -> dict:
                                                                                               False)),
             "hold_rows": bool(hold_rows.get("applied", False)),
             "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False)),
-            "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False))}
+            "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
+            "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):
@@ -428,6 +429,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
         row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
                                         "current plateau of every trial" if m == "amplifier" else
                                         "laser of the free-tip calibration trials" if m == "absorption" else
+                                        "undithered shunt channel, calibration rows" if m == "quantiser" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             w = without({m: "off"})

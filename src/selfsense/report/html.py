@@ -200,6 +200,10 @@ def _model_section(results_dir: Path) -> list[str]:
         kind += (f"; dielectric absorption (charge link, free-tip calibration laser, docs/method.md 6c): "
                  f"{'its charge taken out of Q' if ab.get('applied') else 'not applied'}, "
                  f"{html.escape(str(ab['note']))}")
+    qz = d.get("quantiser") or {}
+    if qz.get("note"):
+        kind += (f"; offset current of an undithered shunt channel (charge link, docs/method.md 1b'): "
+                 f"{'taken out of Q' if qz.get('applied') else 'not applied'}, {html.escape(str(qz['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"

@@ -89,6 +89,7 @@ class SensingConfig:
     hold_rows: str = "auto"
     amplifier: str = "auto"
     absorption: str = "auto"
+    quantiser: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -111,6 +112,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.amplifier: expected 'auto' or 'off', found {self.amplifier!r}")
         if self.absorption not in ("auto", "off"):
             raise ValueError(f"SensingConfig.absorption: expected 'auto' or 'off', found {self.absorption!r}")
+        if self.quantiser not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.quantiser: expected 'auto' or 'off', found {self.quantiser!r}")
         if int(self.cv_blocks) < 2:
             raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
@@ -499,6 +502,8 @@ class SelfSensingEstimator:
     voltage_hysteresis_: Any = field(default=None, init=False, repr=False)
     #: the charge link's absorption member: the R-C branch found on the free-tip laser and whether it is applied
     absorption_: dict = field(default_factory=dict, init=False)
+    #: the charge link's quantiser member: the offset current an undithered shunt channel's short leaves, whether applied
+    quantiser_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -544,6 +549,10 @@ class SelfSensingEstimator:
         # the voltage link (V, Q, u_cmd and V_s of every trial, never a reference): where the amplifier sits at its
         # current limit the actuator voltage is rebuilt before anything reads V
         trials = self._voltage_link(trials, meta)
+        # the charge link's quantiser member (V_s and the relay of the calibration trials, the reference-free channel
+        # check, and their V-Q rows): where the shunt channel is not dithered, the offset current that the relay
+        # short's code leaves is taken out of every trial's Q first (docs/method.md 1b')
+        trials = self._quantiser_link(trials, meta)
         # the charge link's absorption member (calibration free-tip laser): the charge an absorption branch parks is
         # taken out of every trial's Q before anything reads it (hold evidence, H(q), coefficients)
         trials = self._absorption_link(trials, meta)
@@ -807,7 +816,7 @@ class SelfSensingEstimator:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
         the ``members`` forced values, "auto" where not forced."""
         out = {}
-        for k in ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption"):
+        for k in ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser"):
             m = str(self.members.get(k, "auto"))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
@@ -815,7 +824,7 @@ class SelfSensingEstimator:
         unknown = sorted(set(self.members) - set(out))
         if unknown:
             raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift, "
-                             f"hold_rows, amplifier, absorption")
+                             f"hold_rows, amplifier, absorption, quantiser")
         return out
 
     def _identify_h(self, cal_trials, cal, free, slope):
@@ -1193,6 +1202,98 @@ class SelfSensingEstimator:
                                  "note": fit.note + ": applied"})
         return {t: self._with_absorption(df) for t, df in trials.items()}
 
+    def _quantiser_link(self, trials, meta):
+        """The quantiser member of the charge link (docs/method.md 1b'): where the shunt channel is not dithered in
+        any calibration trial (:func:`selfsense.chain.charge.charge_resolution`, reference-free), the relay short's
+        code leaves an offset error ``e`` of up to half an ADC step, and every sample that reads another code carries
+        the current ``e / R`` besides the actuator's (:func:`selfsense.chain.charge.quantiser_column`). The current is
+        one for the device, bounded by half a step over R. It is the value in that bound for which the reference
+        Preisach model of the leakage search (12 x 12 grid, 6 plays, creep) fits the joint calibration rows (6a, the
+        eq. 55 gauge, no leakage, no drift columns) best on ``Q - i_q int m dt`` (bounded scalar search of the
+        least-squares residual). Adopted ("auto") when the blocked-CV error of the same rows (3 folds) is below
+        :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the error without it; forced ("on") whenever the channel
+        is undithered. Returns the trials to fit on (every trial's Q corrected where adopted)."""
+        from scipy.optimize import minimize_scalar
+
+        from selfsense.chain.charge import QUANTISER_CV_RATIO, charge_resolution, quantiser_column
+        from selfsense.hysteresis.models import PreisachH, fit_stride
+        from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
+
+        mode = self._member_modes()["quantiser"]
+        if mode == "auto" and self.config.quantiser == "off":
+            mode = "off"
+        self.quantiser_ = {"mode": mode, "applied": False}
+        if mode == "off":
+            self.quantiser_["note"] = "quantiser member off (config quantiser: off or member forced off)"
+            return trials
+        R = self._shunt_resistance()
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        cal = meta[meta["role"] == "calibration"]
+        if R is None or not R > 0 or any("V_s" not in trials[t] for t in cal.index):
+            self.quantiser_["note"] = "no V_s column or shunt resistance: not assessed"
+            return trials
+        res = [charge_resolution(trials[t], R)[0] for t in cal.index]
+        steps = [r.step_v for r in res]
+        if not all(x > 0 for x in steps) or max(steps) > min(steps) * (1 + 1e-6):
+            self.quantiser_["note"] = ("the shunt channel is not quantised on one lattice in every calibration trial "
+                                       "(a floating-point or resampled record): not applicable")
+            return trials
+        if any(r.dithered for r in res):
+            self.quantiser_["note"] = ("the noise dithers the shunt channel's ADC step in a calibration trial: the "
+                                       "short's mean is unbiased, not applied")
+            return trials
+        half = 0.5 * float(np.median(steps))
+        bound = half / R
+        cols = {t: quantiser_column(df, half) for t, df in trials.items()}
+        p = _rig_params(self.rig)
+        slope = 1.0 / (p["n_A"] * p["C_p"])
+
+        def rows(i_q):
+            moved = {t: _with_column(trials[t], "q", trials[t]["q"].to_numpy(dtype=float) - i_q * cols[t])
+                     for t in cal.index}
+            qs, ys, ex, _, _, dt = self._h_segments(moved, cal, slope, 0.0, drift_cols=False)
+            return qs, ys, ex, dt
+
+        def insample(i_q):
+            qs, ys, ex, dt = rows(i_q)
+            return _insample(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex)
+
+        def cv(i_q):
+            qs, ys, ex, dt = rows(i_q)
+            k = fit_stride([len(q) for q in qs])
+            folds = blocked_folds([len(q[::k]) for q in qs], 3)
+            return float(np.mean(_cv_linear(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, folds, 8)))
+
+        i_q = float(minimize_scalar(insample, bounds=(-bound, bound), method="bounded",
+                                    options={"xatol": bound * 1e-3}).x)
+        cv0, cv1 = cv(0.0), cv(i_q)
+        ok = cv1 < QUANTISER_CV_RATIO * cv0
+        applied = ok or mode == "on"
+        self.quantiser_.update({"step_v": 2.0 * half, "current_step_a": 2.0 * bound, "half_step_v": half,
+                                "i_q_a": i_q, "cv_rms_v_without": cv0, "cv_rms_v_with": cv1, "supported": bool(ok),
+                                "applied": bool(applied)})
+        verdict = ("applied" if ok else "forced on" if applied else
+                   f"not applied (the blocked-CV error is not {1 - QUANTISER_CV_RATIO:.0%} lower)")
+        self.quantiser_["note"] = (f"undithered shunt channel (ADC step {2 * bound * 1e9:.3g} nA): offset current "
+                                   f"{i_q * 1e9:.3g} nA on the samples off the short's code, calibration rows' "
+                                   f"blocked-CV error {cv0:.4g} -> {cv1:.4g} V: {verdict}")
+        if not applied:
+            return trials
+        return {t: self._with_quantiser(df) for t, df in trials.items()}
+
+    def _with_quantiser(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial with the quantiser member's offset current taken out of ``q`` (unchanged when not applied)."""
+        if not self.quantiser_.get("applied"):
+            return df
+        if "V_s" not in df:
+            raise ValueError("the model carries the quantiser member (an offset current on the samples whose shunt "
+                             "voltage reads another ADC code than the relay short): the trial needs its V_s column")
+        from selfsense.chain.charge import quantiser_column
+
+        a = self.quantiser_
+        return _with_column(df, "q", df["q"].to_numpy(dtype=float)
+                            - float(a["i_q_a"]) * quantiser_column(df, float(a["half_step_v"])))
+
     def _with_absorption(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with the charge of the absorption branch taken out of ``q`` (unchanged when not applied)."""
         if not self.absorption_.get("applied"):
@@ -1205,7 +1306,7 @@ class SelfSensingEstimator:
 
     def _with_links(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial through the fitted voltage link (amplifier rebuild) and the charge link's absorption member."""
-        return self._with_absorption(self._with_voltage(df))
+        return self._with_absorption(self._with_quantiser(self._with_voltage(df)))
 
     def _with_voltage(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with its current-limited actuator voltage rebuilt (unchanged when the member is not applied)."""
@@ -1466,6 +1567,7 @@ class SelfSensingEstimator:
             "drift_hysteresis": (_h_to_dict(self.drift_hysteresis_) if self.drift_hysteresis_ is not None else None),
             "amplifier": dict(self.amplifier_),
             "absorption": dict(self.absorption_),
+            "quantiser": dict(self.quantiser_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -1490,5 +1592,6 @@ class SelfSensingEstimator:
         est.offset_drift_ = bool(d.get("offset_drift", False))
         est.amplifier_ = dict(d.get("amplifier") or {})
         est.absorption_ = dict(d.get("absorption") or {})
+        est.quantiser_ = dict(d.get("quantiser") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

@@ -5,7 +5,7 @@ SelfSensingStream` for one model at one sample time, with every parameter as a `
 with 17 significant digits:
 
 1. front: SI conversion, in-amp offset from the first relay segment, trapezoidal charge reset by the relay
-   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the absorption and the leakage members;
+   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the quantiser, absorption and leakage members;
 2. H(Q) of any model the estimator holds: the registry's ``linear``, ``pi``, ``preisach`` (the incremental grid of
    ``hysteresis.models._grid``), ``ri`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11, 15-16), ``duhem``, ``modified_pi``
    (Kuhnen's operator, thesis eqs. 29-42, in the sign / linear gauge) and the thesis identification's ``GaugedH``,
@@ -126,7 +126,7 @@ _HEADER = """/* {name}.h: self-sensing estimator exported by selfsense {version}
 #define SS_DT {dt}
 {sizes}
 typedef struct {{
-    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off, da_y;
+    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off, da_y, m_last, mcsum, mbase;
     int off_mode;           /* 0 waiting for the relay, 1 averaging it, 2 offset known */
     double dx_dc, f_dc;     /* sliding DC offsets */
 {fields}}} ss_state;
@@ -142,7 +142,7 @@ void ss_init(ss_state *s)
 {
     int i;
     s->t_n = 0.0; s->vs_last = 0.0; s->csum = 0.0; s->base = 0.0; s->v_last = 0.0; s->icsum = 0.0; s->ibase = 0.0;
-    s->da_y = 0.0;
+    s->da_y = 0.0; s->m_last = 0.0; s->mcsum = 0.0; s->mbase = 0.0;
     s->off_sum = 0.0; s->off_n = 0.0; s->off = OFF0; s->off_mode = OFF_MODE0;
     s->dx_dc = 0.0; s->f_dc = 0.0;
     (void)i;
@@ -153,7 +153,7 @@ static double trapz(double a, double b, double h) { return 0.5 * (a + b) * h; }
 
 int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, double *f)
 {
-    double Vs, V, q, inc, iinc, VH, Vp, dxr, fr, d, ff;
+    double Vs, V, q, inc, iinc, minc, mk, VH, Vp, dxr, fr, d, ff;
     int shorted, st;
     if (relay != 0 && relay != 1) return SS_ERR_RELAY;
     shorted = relay == 1;
@@ -166,20 +166,24 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
         if (shorted) { s->off_sum += Vs; s->off_n += 1.0; }
         else { s->off = s->off_sum / s->off_n; s->off_mode = 2; }
     }
-    inc = 0.0; iinc = 0.0;
+    inc = 0.0; iinc = 0.0; minc = 0.0;
+    /* quantiser member: m = 1 on open samples more than half an ADC step off the short's mean */
+    mk = (!shorted && fabs(Vs - s->off) > Q_HALF) ? 1.0 : 0.0;
     if (s->t_n > 0.0 && !shorted) {
         inc = trapz((s->vs_last - s->off) / R_SHUNT, (Vs - s->off) / R_SHUNT, SS_DT);
         iinc = trapz(s->v_last, V, SS_DT);
+        minc = trapz(s->m_last, mk, SS_DT);
     }
-    s->csum += inc; s->icsum += iinc;
-    if (shorted) { s->base = s->csum; s->ibase = s->icsum; q = 0.0; }
+    s->csum += inc; s->icsum += iinc; s->mcsum += minc;
+    if (shorted) { s->base = s->csum; s->ibase = s->icsum; s->mbase = s->mcsum; q = 0.0; }
     else q = s->csum - s->base;
+    if (Q_I != 0.0) q = q - Q_I * (shorted ? 0.0 : s->mcsum - s->mbase);  /* quantiser member: Q - i_q int m dt */
     if (DA_C != 0.0) {  /* absorption member: Q - c LP_tau(V) */
         s->da_y = (1.0 - DA_A) * V + DA_A * s->da_y;
         q = q - DA_C * s->da_y;
     }
     if (G_LEAK != 0.0) q = q - G_LEAK * (shorted ? 0.0 : s->icsum - s->ibase);
-    s->vs_last = Vs; s->v_last = V; s->t_n += 1.0;
+    s->vs_last = Vs; s->v_last = V; s->m_last = mk; s->t_n += 1.0;
     st = h_step(s, q, &VH);
     if (st != SS_OK) return st;
     Vp = V - VH;
@@ -477,12 +481,15 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         raise ExportError(f"name {name!r} is not a C identifier")
     cfg, c = est.config, est.coef_
     ab = getattr(est, "absorption_", None) or {}
+    qz = getattr(est, "quantiser_", None) or {}
     h = _h_spec(est.hysteresis_, float(dt))
     consts = {
         "R_SHUNT": _rig_get(rig, "shunt_resistance_ohm"), "INAMP": _rig_get(rig, "inamp_gain"),
         "GAIN": _rig_get(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
         "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
         "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
+        "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,
+        "Q_HALF": float(qz["half_step_v"]) if qz.get("applied") else 0.0,
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
         "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],

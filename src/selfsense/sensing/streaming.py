@@ -16,7 +16,10 @@ each carry their state (O(1) memory per sample):
    conductance ``g``, ``leakage_s`` in the model JSON) subtracts ``g int V dt``, the same running trapezoid on V
    restarted at the relay (``SelfSensingEstimator._charge``, ``integral_v``). The **absorption member** (``c_f``,
    ``tau_s`` in the model JSON's ``absorption``) subtracts ``c LP_tau(V)`` before it, the recursion of
-   ``chain.charge.absorption_column`` at the stream's sample period.
+   ``chain.charge.absorption_column`` at the stream's sample period. The **quantiser member** (``i_q_a``,
+   ``half_step_v`` in the model JSON's ``quantiser``) subtracts ``i_q int m dt`` before both, ``m`` = 1 on the open
+   samples whose ``V_s`` is more than half an ADC step from the short's mean, the same running trapezoid restarted at
+   the relay (``chain.charge.quantiser_column``).
 2. **H(Q)** for every model the estimator can hold: the registry kinds ``linear``, ``pi``, ``preisach``, ``ri``,
    ``duhem``, ``modified_pi`` (their ``predict(q, dt, state)`` carries the operators' memory: play and creep states,
    the Preisach grid's stack of dominant extrema, the RI model's extrema memory, the Duhem map's state) and the
@@ -52,11 +55,11 @@ __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "
 
 # ---- front state (float64) ------------------------------------------------------------------------------------
 (_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE,
- _DA_Y) = range(13)
-_NS_FRONT = 13
+ _DA_Y, _M_LAST, _MCSUM, _MBASE) = range(16)
+_NS_FRONT = 16
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- front parameters
-_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA = range(6)
+_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH = range(8)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 (_B_A1, _B_A2, _B_B21, _B_B22, _B_DX0, _B_ZL, _B_DXLO, _B_DXHI, _B_FLO, _B_FHI, _B_DCDX, _B_DCF,
@@ -101,9 +104,10 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
 
 @njit(cache=True)
 def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
-    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57), the absorption and the leakage members.
-    Returns (status, index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak, c_da, a_da]
-    (``a_da = exp(-dt / tau)`` of the absorption branch); ``S`` the front state (updated in place); ``t`` ignored
+    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57), the quantiser, absorption and leakage
+    members. Returns (status, index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak, c_da,
+    a_da, i_q, half_step] (``a_da = exp(-dt / tau)`` of the absorption branch; ``i_q`` the quantiser member's current
+    on the samples off the short's ADC code, ``half_step`` half that step [V]); ``S`` the front state (updated in place); ``t`` ignored
     unless ``use_t``. Writes the charge the model uses (``q_out``, after the members), the measured charge
     (``qm_out``), V and the sample's time (``t_out``: the time stamp, or the sample period accumulated from 0 without
     time stamps)."""
@@ -135,6 +139,19 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         if st != _OK:
             return st, k
         qm_out[k] = q
+        cq = P[_F_CQ]
+        if cq != 0.0:
+            # quantiser member: Q - i_q int m dt, m = 1 on open samples off the short's code (the offset is known
+            # from the first open sample on), the same trapezoid restarted at the relay (chain.charge.quantiser_column)
+            mk = 0.0
+            if not shorted and abs(Vs - S[_OFF]) > P[_F_QH]:
+                mk = 1.0
+            st, mq, mcsum, mbase, _t = _charge(S[_MCSUM], S[_MBASE], S[_T_LAST], S[_M_LAST], S[_NSEEN], 0.0, 1.0,
+                                               mk, shorted, tk, dt, use_t)
+            S[_MCSUM] = mcsum
+            S[_MBASE] = mbase
+            S[_M_LAST] = mk
+            q = q - cq * mq
         cda = P[_F_CDA]
         if cda != 0.0:
             # absorption member: Q - c LP_tau(V), the recursion of chain.charge.absorption_column (from rest)
@@ -522,7 +539,9 @@ class SelfSensingStream:
             if not (np.isfinite(dt_ab) and dt_ab > 0):
                 raise ValueError("SelfSensingStream: the absorption member needs the sample period; pass dt")
             c_da, a_da = float(ab["c_f"]), float(np.exp(-dt_ab / float(ab["tau_s"])))
-        self._PF = np.array([R, inamp, gain, g, c_da, a_da])
+        qz = getattr(estimator, "quantiser_", None) or {}
+        i_q, half_q = ((float(qz["i_q_a"]), float(qz["half_step_v"])) if qz.get("applied") else (0.0, 0.0))
+        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
