@@ -77,8 +77,10 @@ def device():
     return tr, me, rig, truth
 
 
-def _fit(tr, me, rig, mode="auto", **cfg):
-    return SelfSensingEstimator(config=SensingConfig(**cfg), rig=rig, members={"quantiser": mode}).fit(tr, me)
+def _fit(tr, me, rig, mode="auto", quantiser="auto"):
+    # the member is off by default (config quantiser: off); "auto" lets the calibration decide
+    return SelfSensingEstimator(config=SensingConfig(quantiser=quantiser), rig=rig,
+                                members={"quantiser": mode}).fit(tr, me)
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +143,7 @@ def test_stream_and_model_json_carry_the_member_and_config_turns_it_off(coarse, 
     back = SelfSensingEstimator.from_dict(est.to_dict(), rig)
     df = co["val_force_large_mixed"]
     assert np.array_equal(back.estimate(df)["f_hat"].to_numpy(), est.estimate(df)["f_hat"].to_numpy())
-    off = SelfSensingEstimator(config=SensingConfig(quantiser="off"), rig=rig)
+    off = SelfSensingEstimator(rig=rig)   # the default configuration
     off._quantiser_link(co, me)
     assert not off.quantiser_["applied"] and "config quantiser: off" in off.quantiser_["note"]
     with pytest.raises(ValueError, match="SensingConfig.quantiser"):

@@ -89,7 +89,9 @@ class SensingConfig:
     hold_rows: str = "auto"
     amplifier: str = "auto"
     absorption: str = "auto"
-    quantiser: str = "auto"
+    #: off by default: measured on the whole-device benchmark it lowers the force error and raises the displacement
+    #: error of the rate-dependent devices (docs/cross_device.md, "The quantiser member")
+    quantiser: str = "off"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -1472,7 +1474,10 @@ class SelfSensingEstimator:
                     f"duration. Worst trial {worst}: {w['sigma_q_end_c'] * 1e6:.3g} uC (1 SD) by its end; moving its charge "
                     f"by that much moves the tip estimates by {w['dx_pct']:.3g} % of the displacement range and "
                     f"{w['f_pct']:.3g} % of the force range. A larger shunt resistance or in-amp gain, a finer ADC or "
-                    f"an added dither resolves it")
+                    f"an added dither resolves it"
+                    + ("" if (self.quantiser_ or {}).get("applied") else
+                       "; calibration: quantiser: auto takes out the offset current the short's code leaves "
+                       "(docs/method.md 1b'; off by default)"))
         roles = meta["role"] if "role" in meta else pd.Series(dtype=str)
         val = [t for t in per if str(roles.get(t, "")) == "validation"]
         cal = [t for t in per if str(roles.get(t, "")) == "calibration"]
