@@ -42,8 +42,8 @@ import pandas as pd
 
 __all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "DITHER_MIN_STEPS", "RELAX_TAUS_S",
            "Z_SUPPORT", "AbsorptionFit", "ChargeResolution", "HoldEvidence", "absorption_column", "charge_resolution",
-           "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step", "QUANTISER_CV_RATIO",
-           "quantiser_column"]
+           "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step", "QUANTISER_AT_BOUND",
+           "QUANTISER_CV_RATIO", "quantiser_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -637,6 +637,10 @@ def charge_resolution(df: pd.DataFrame, R: float) -> tuple[ChargeResolution, np.
 #: the quantiser member is adopted when the calibration rows' blocked-CV error of the reference model with the
 #: searched current is below this fraction of the error without it (docs/method.md 1b')
 QUANTISER_CV_RATIO = 0.95
+#: ... and only when the search's optimum is inside the physical range: a current within 1 % of the bound (half an ADC
+#: step over R) is the bound itself, i.e. the calibration rows ask for more than the member can physically give and
+#: the column is standing in for another misfit (a rate-dependent H, leakage or a wandering offset: docs/method.md 1b')
+QUANTISER_AT_BOUND = 0.99
 
 
 def quantiser_column(df: pd.DataFrame, half_step_v: float) -> np.ndarray:

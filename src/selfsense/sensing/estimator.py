@@ -1213,11 +1213,12 @@ class SelfSensingEstimator:
         Preisach model of the leakage search (12 x 12 grid, 6 plays, creep) fits the joint calibration rows (6a, the
         eq. 55 gauge, no leakage, no drift columns) best on ``Q - i_q int m dt`` (bounded scalar search of the
         least-squares residual). Adopted ("auto") when the blocked-CV error of the same rows (3 folds) is below
-        :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the error without it; forced ("on") whenever the channel
-        is undithered. Returns the trials to fit on (every trial's Q corrected where adopted)."""
+        :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the error without it and the current lies inside its
+        bound (:data:`~selfsense.chain.charge.QUANTISER_AT_BOUND`: an optimum at the bound means the rows want more
+        than an offset rounding can give); forced ("on") whenever the channel is undithered. Returns the trials to fit on (every trial's Q corrected where adopted)."""
         from scipy.optimize import minimize_scalar
 
-        from selfsense.chain.charge import QUANTISER_CV_RATIO, charge_resolution, quantiser_column
+        from selfsense.chain.charge import QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, charge_resolution, quantiser_column
         from selfsense.hysteresis.models import PreisachH, fit_stride
         from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
 
@@ -1269,12 +1270,16 @@ class SelfSensingEstimator:
         i_q = float(minimize_scalar(insample, bounds=(-bound, bound), method="bounded",
                                     options={"xatol": bound * 1e-3}).x)
         cv0, cv1 = cv(0.0), cv(i_q)
-        ok = cv1 < QUANTISER_CV_RATIO * cv0
+        interior = abs(i_q) < QUANTISER_AT_BOUND * bound
+        ok = bool(cv1 < QUANTISER_CV_RATIO * cv0 and interior)
         applied = ok or mode == "on"
         self.quantiser_.update({"step_v": 2.0 * half, "current_step_a": 2.0 * bound, "half_step_v": half,
                                 "i_q_a": i_q, "cv_rms_v_without": cv0, "cv_rms_v_with": cv1, "supported": bool(ok),
-                                "applied": bool(applied)})
+                                "at_bound": not interior, "applied": bool(applied)})
         verdict = ("applied" if ok else "forced on" if applied else
+                   "not applied (the search ends at its bound, half an ADC step over R: the rows ask for more "
+                   "current than an offset rounding can give, so the column stands in for another misfit)"
+                   if not interior else
                    f"not applied (the blocked-CV error is not {1 - QUANTISER_CV_RATIO:.0%} lower)")
         self.quantiser_["note"] = (f"undithered shunt channel (ADC step {2 * bound * 1e9:.3g} nA): offset current "
                                    f"{i_q * 1e9:.3g} nA on the samples off the short's code, calibration rows' "
