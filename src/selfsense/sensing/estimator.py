@@ -1215,7 +1215,8 @@ class SelfSensingEstimator:
         least-squares residual). Adopted ("auto") when the blocked-CV error of the same rows (3 folds) is below
         :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the error without it and the current lies inside its
         bound (:data:`~selfsense.chain.charge.QUANTISER_AT_BOUND`: an optimum at the bound means the rows want more
-        than an offset rounding can give); forced ("on") whenever the channel is undithered. Returns the trials to fit on (every trial's Q corrected where adopted)."""
+        than an offset rounding can give); forced ("on") whenever the channel is undithered. Returns the trials to fit
+        on (every trial's Q corrected where adopted)."""
         from scipy.optimize import minimize_scalar
 
         from selfsense.chain.charge import QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, charge_resolution, quantiser_column
