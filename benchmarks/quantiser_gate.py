@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
@@ -45,20 +44,11 @@ def _seeds(text: str) -> list[int]:
 def _link(args) -> dict:
     """The voltage and quantiser links of one device (no H(q) selection), with the simulator's true current."""
     family, preset, seed = args
-    from selfsense import io as sio
+    from selfsense.devices import device_scenario, simulate_device
     from selfsense.sensing import SelfSensingEstimator, SensingConfig
-    from selfsense.signals import prepare_trial
-    from selfsense.sim.families import draw_device
-    from selfsense.sim.simulate import simulate_dataset
 
-    sc = draw_device(family, seed, preset, randomise="device")
-    sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
-    with tempfile.TemporaryDirectory(prefix="selfsense-qgate-") as tmp:
-        ds = Path(tmp) / sc["name"]
-        simulate_dataset(sc, out_dir=ds, truth_dir=Path(tmp) / "truth", contributions=False)
-        rig = sio.load_rig(ds)
-        meta = sio.load_trials(ds).set_index("trial")
-        trials = {t: prepare_trial(sio.trial_signals(ds, t, rig=rig), rig) for t in meta.index}
+    sc = device_scenario(family, preset, seed, "thesis", "device")
+    trials, meta, rig, _ = simulate_device(sc)
     est = SelfSensingEstimator(config=SensingConfig(quantiser="auto"), rig=rig)
     est._quantiser_link(est._voltage_link(trials, meta), meta)
     qz = dict(est.quantiser_)

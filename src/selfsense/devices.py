@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["run_device", "aggregate", "aggregate_markdown", "bench", "write_tables", "PROTOCOLS"]
+__all__ = ["device_scenario", "simulate_device", "run_device", "aggregate", "aggregate_markdown", "bench", "write_tables", "PROTOCOLS"]
 
 
 def _default_pipeline_config() -> dict:
@@ -34,6 +34,45 @@ def _default_pipeline_config() -> dict:
 PROTOCOLS = ("thesis", "three_trial")
 
 
+def device_scenario(family: str, preset: str, seed: int, protocol: str = "three_trial",
+                    randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None) -> dict:
+    """The scenario of one virtual device of the benchmark (:func:`selfsense.sim.families.draw_device`), with the
+    ``device_overrides`` set after the draw and, on the ``thesis`` protocol, without the free-tip mixed calibration
+    trial."""
+    from selfsense.sim.families import draw_device
+
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
+    sc = draw_device(family, seed, preset, randomise=randomise)
+    unknown = sorted(set(device_overrides or {}) - set(sc["device"]))
+    if unknown:
+        raise ValueError(f"device_overrides: unknown device quantities {unknown}; expected some of "
+                         f"{sorted(sc['device'])}")
+    sc["device"].update(dict(device_overrides or {}))
+    if protocol == "thesis":
+        sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
+    return sc
+
+
+def simulate_device(sc: Mapping[str, Any], with_truth: bool = False) -> tuple[dict, pd.DataFrame, Any, dict | None]:
+    """Simulate a device scenario (:func:`device_scenario`) into a temporary dataset and load it as the pipeline
+    does: (prepared trials by id, trials.csv indexed by trial, rig, the simulator's truth per trial or None).
+    Raises :class:`selfsense.io.ContractError` where the generated dataset breaks the data contract."""
+    from selfsense import io as sio
+    from selfsense.signals import prepare_trial
+    from selfsense.sim.simulate import simulate_dataset
+
+    with tempfile.TemporaryDirectory(prefix="selfsense-device-") as tmp:
+        ds = Path(tmp) / sc["name"]
+        truth_dir = Path(tmp) / (sc["name"] + ".truth")
+        simulate_dataset(sc, out_dir=ds, truth_dir=truth_dir, contributions=False)
+        rig = sio.load_rig(ds)
+        meta = sio.load_trials(ds).set_index("trial")
+        trials = {t: prepare_trial(sio.trial_signals(ds, t, rig=rig), rig) for t in meta.index}
+        truth = ({t: pd.read_parquet(truth_dir / f"{t}.parquet") for t in meta.index} if with_truth else None)
+    return trials, meta, rig, truth
+
+
 def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
                protocol: str = "three_trial", randomise: str = "hysteresis",
                device_overrides: Mapping[str, Any] | None = None) -> dict:
@@ -43,54 +82,37 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense import io as sio
     from selfsense.report import tables
     from selfsense.sensing import SelfSensingEstimator
-    from selfsense.signals import prepare_trial
-    from selfsense.sim.families import draw_device
-    from selfsense.sim.simulate import simulate_dataset
     from selfsense.stages import sensing_config
 
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
     cfg = dict(config or _default_pipeline_config())
-    sc = draw_device(family, seed, preset, randomise=randomise)
-    unknown = sorted(set(device_overrides or {}) - set(sc["device"]))
-    if unknown:
-        raise ValueError(f"device_overrides: unknown device quantities {unknown}; expected some of "
-                         f"{sorted(sc['device'])}")
-    sc["device"].update(dict(device_overrides or {}))
-    if protocol == "thesis":
-        sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
+    sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides)
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
                            "randomise": randomise, **{f"device_{k}": v for k, v in sc.get("randomise", {}).items()},
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0),
                            **{f"override_{k}": v for k, v in (device_overrides or {}).items()}}
-    with tempfile.TemporaryDirectory(prefix="selfsense-device-") as tmp:
-        ds = Path(tmp) / sc["name"]
-        simulate_dataset(sc, out_dir=ds, truth_dir=Path(tmp) / (sc["name"] + ".truth"), contributions=False)
-        rig = sio.load_rig(ds)
-        meta = sio.load_trials(ds).set_index("trial")
-        try:
-            sigs = {t: prepare_trial(sio.trial_signals(ds, t, rig=rig), rig) for t in meta.index}
-        except sio.ContractError as exc:  # the generator made a dataset the contract rejects: a benchmark failure
-            rec.update({"status": "invalid_dataset", "error": str(exc).splitlines()[0][-300:],
-                        "displacement_pct": float("nan"), "force_pct": float("nan")})
-            return rec
-        try:
-            est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
-        except Exception as exc:  # a failed calibration is a result of the benchmark, recorded as such
-            rec.update({"status": "calibration_failed", "error": f"{type(exc).__name__}: {exc}",
-                        "displacement_pct": float("nan"), "force_pct": float("nan")})
-            return rec
-        ests = {}
-        for t, s in sigs.items():
-            e = est.estimate(s)
-            e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
-            ests[t] = e
-        pt = tables.per_trial_table(ests, meta.reset_index())
-        t3 = tables.table3(pt).set_index("measurement")
-        # the mixed-drive validation trials (minor loops and holds the sine calibration never shows) on their own
-        mixed = pt[(pt["role"] == "validation") & (pt["signal"] == "mixed")]
-        mixed_pct = {m: float(g["percent_of_range"].mean()) for m, g in mixed.groupby("measurement")}
+    try:
+        sigs, meta, rig, _ = simulate_device(sc)
+    except sio.ContractError as exc:  # the generator made a dataset the contract rejects: a benchmark failure
+        rec.update({"status": "invalid_dataset", "error": str(exc).splitlines()[0][-300:],
+                    "displacement_pct": float("nan"), "force_pct": float("nan")})
+        return rec
+    try:
+        est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+    except Exception as exc:  # a failed calibration is a result of the benchmark, recorded as such
+        rec.update({"status": "calibration_failed", "error": f"{type(exc).__name__}: {exc}",
+                    "displacement_pct": float("nan"), "force_pct": float("nan")})
+        return rec
+    ests = {}
+    for t, s in sigs.items():
+        e = est.estimate(s)
+        e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
+        ests[t] = e
+    pt = tables.per_trial_table(ests, meta.reset_index())
+    t3 = tables.table3(pt).set_index("measurement")
+    # the mixed-drive validation trials (minor loops and holds the sine calibration never shows) on their own
+    mixed = pt[(pt["role"] == "validation") & (pt["signal"] == "mixed")]
+    mixed_pct = {m: float(g["percent_of_range"].mean()) for m, g in mixed.groupby("measurement")}
     hrep = est.fit_report_.get("hysteresis", {})
     rec.update({
         "status": "ok",

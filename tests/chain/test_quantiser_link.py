@@ -44,24 +44,9 @@ def test_an_undithered_short_leaves_a_current_on_the_samples_off_its_code():
 def _whole_device(family, preset, seed):
     """A device of the whole-device benchmark on the thesis protocol (selfsense.devices.run_device's data), with the
     simulator's truth beside it."""
-    import tempfile
-    from pathlib import Path
+    from selfsense.devices import device_scenario, simulate_device
 
-    from selfsense import io as sio
-    from selfsense.signals import prepare_trial
-    from selfsense.sim.families import draw_device
-    from selfsense.sim.simulate import simulate_dataset
-
-    sc = draw_device(family, seed, preset, randomise="device")
-    sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
-    with tempfile.TemporaryDirectory() as tmp:
-        ds = Path(tmp) / sc["name"]
-        simulate_dataset(sc, out_dir=ds, truth_dir=Path(tmp) / "truth", contributions=False)
-        rig = sio.load_rig(ds)
-        meta = sio.load_trials(ds).set_index("trial")
-        trials = {t: prepare_trial(sio.trial_signals(ds, t, rig=rig), rig) for t in meta.index}
-        truth = {t: pd.read_parquet(Path(tmp) / "truth" / f"{t}.parquet") for t in meta.index}
-    return trials, meta, rig, truth
+    return simulate_device(device_scenario(family, preset, seed, "thesis", "device"), with_truth=True)
 
 
 @pytest.fixture(scope="module")
