@@ -20,7 +20,8 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["device_scenario", "simulate_device", "run_device", "aggregate", "aggregate_markdown", "bench", "write_tables", "PROTOCOLS"]
+__all__ = ["device_scenario", "simulate_device", "run_device", "aggregate", "aggregate_markdown", "bench",
+           "write_tables", "PROTOCOLS"]
 
 
 def _default_pipeline_config() -> dict:

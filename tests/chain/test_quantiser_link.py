@@ -49,6 +49,19 @@ def _whole_device(family, preset, seed):
     return simulate_device(device_scenario(family, preset, seed, "thesis", "device"), with_truth=True)
 
 
+def _true_current(tr, truth, half_step_v) -> float:
+    """The simulator's offset current as the member would see it: the measured-minus-true charge of every trial
+    (after its relay short) regressed on the member's column (an oracle: the simulator's truth)."""
+    num = den = 0.0
+    for t, df in tr.items():
+        m = df["relay"].to_numpy() < 0.5
+        e = df["q"].to_numpy() - truth[t]["q"].to_numpy()
+        e = e - e[np.argmax(m)]
+        col = quantiser_column(df, half_step_v)
+        num, den = num + float(col[m] @ e[m]), den + float(col[m] @ col[m])
+    return num / den
+
+
 @pytest.fixture(scope="module")
 def coarse():
     # generalised PI, clean preset, seed 4 of the whole-device benchmark: a 12-bit shunt channel whose noise does not
@@ -83,16 +96,9 @@ def test_member_finds_the_current_and_lowers_table3_on_an_undithered_channel(coa
     assert not charge_resolution(tr["cal_free_sine"], R)[0].dithered
     qz = est.quantiser_
     assert qz["applied"] and qz["supported"] and qz["cv_rms_v_with"] < 0.5 * qz["cv_rms_v_without"]   # 0.10 measured
-    # the true offset current: the measured-minus-true charge of every trial against the member's column (oracle,
-    # the simulator's truth; 444 nA)
-    num = den = 0.0
-    for t, df in tr.items():
-        m = df["relay"].to_numpy() < 0.5
-        e = df["q"].to_numpy() - truth[t]["q"].to_numpy()
-        e = e - e[np.argmax(m)]
-        col = quantiser_column(df, qz["half_step_v"])
-        num, den = num + float(col[m] @ e[m]), den + float(col[m] @ col[m])
-    assert abs(qz["i_q_a"] / (num / den) - 1) < 0.15, (qz["i_q_a"], num / den)        # 412 nA measured
+    # the true offset current (oracle, the simulator's truth; 444 nA)
+    i_true = _true_current(tr, truth, qz["half_step_v"])
+    assert abs(qz["i_q_a"] / i_true - 1) < 0.15, (qz["i_q_a"], i_true)                 # 412 nA measured
     assert abs(qz["i_q_a"]) <= 0.5 * qz["current_step_a"] * (1 + 1e-12)
     on = _summary(tip_table(tr, me, rig, None, estimator=est))["mean"]
     without = _summary(tip_table(tr, me, rig, None, estimator=off))["mean"]
@@ -157,11 +163,4 @@ def test_a_current_at_its_physical_bound_is_not_adopted():
     assert not qz["applied"] and not qz["supported"] and "bound" in qz["note"]
     assert all(out[t] is tr[t] or np.array_equal(out[t]["q"].to_numpy(), tr[t]["q"].to_numpy()) for t in tr)
     # the simulator's true current is well inside the bound: the search's answer is not the effect's
-    num = den = 0.0
-    for t, df in tr.items():
-        m = df["relay"].to_numpy() < 0.5
-        e = df["q"].to_numpy() - truth[t]["q"].to_numpy()
-        e = e - e[np.argmax(m)]
-        col = quantiser_column(df, qz["half_step_v"])
-        num, den = num + float(col[m] @ e[m]), den + float(col[m] @ col[m])
-    assert abs(num / den) < 0.8 * bound
+    assert abs(_true_current(tr, truth, qz["half_step_v"])) < 0.8 * bound

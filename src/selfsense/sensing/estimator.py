@@ -345,6 +345,31 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
 
 
+def _reference_h():
+    """The reference H(q) of the charge-link searches (leakage, quantiser, amplifier rows): a 12 x 12 Preisach grid
+    with 6 plays, creep and ridge 1e-4, fixed whatever H(q) the configuration selects, so that a search's numbers
+    depend on the calibration inputs alone."""
+    from selfsense.hysteresis.models import PreisachH
+
+    return PreisachH(n_grid=12, n_play=6, ridge=1e-4)
+
+
+def _reference_insample(qs, ys, ex, dt, drop=None) -> float:
+    """:func:`_insample` of the reference model (:func:`_reference_h`): the objective of the charge-link searches."""
+    return _insample(_reference_h(), qs, ys, dt, ex, drop=drop)
+
+
+def _reference_cv(qs, ys, ex, dt) -> float:
+    """Mean blocked-CV RMS [V] of the reference model (:func:`_reference_h`) on the calibration rows, 3 folds, every
+    8th row held out: the gate of the charge-link members."""
+    from selfsense.hysteresis.models import fit_stride
+    from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
+
+    k = fit_stride([len(q) for q in qs])
+    folds = blocked_folds([len(q[::k]) for q in qs], 3)
+    return float(np.mean(_cv_linear(_reference_h(), qs, ys, dt, ex, folds, 8)))
+
+
 # ---- the charge-link and rest-offset gates (docs/method.md 6c, 6c'): adopted on the calibration rows' blocked CV --
 #: leakage from the calibration rows: the blocked-CV error with g must not be higher than without (ratio <= 1) ...
 LEAK_CAL_MAX_CV_RATIO = 1.0
@@ -684,22 +709,17 @@ class SelfSensingEstimator:
         """
         from scipy.optimize import minimize_scalar
 
-        from selfsense.hysteresis.models import PreisachH, fit_stride
-        from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
+        from selfsense.hysteresis.models.select import blocked_folds
 
         def rows(g, cols=False):
             qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g, drift_cols=cols)
             return qs, ys, ex, dt
 
         def insample(g, drop=None):
-            qs, ys, ex, dt = rows(g, True)
-            return _insample(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, drop=drop)
+            return _reference_insample(*rows(g, True), drop=drop)
 
         def cv(g, cols=False):
-            qs, ys, ex, dt = rows(g, cols)
-            k = fit_stride([len(q) for q in qs])
-            folds = blocked_folds([len(q[::k]) for q in qs], 3)
-            return float(np.mean(_cv_linear(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, folds, 8)))
+            return _reference_cv(*rows(g, cols))
 
         # the search runs over 0-50 nS; where it ends at that bound it continues up to the conductance whose charge
         # g int V dt would reach half of the largest calibration charge range (a bound from the data, not a prior)
@@ -1163,7 +1183,6 @@ class SelfSensingEstimator:
         Preisach memory the reversal points the anchors sit on carry the Everett function between them. A linear
         term in q is a gauge of H and does not change the rebuild (V - H is interpolated linearly in q)."""
         from selfsense.chain.amplifier import limited_mask
-        from selfsense.hysteresis.models import PreisachH
 
         R = _rig_get(self.rig, "shunt_resistance_ohm")
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
@@ -1172,7 +1191,7 @@ class SelfSensingEstimator:
                                                          trials[t]["V"].to_numpy(dtype=float))) for t in cal.index}
         p = _rig_params(self.rig)
         qs, ys, ex, _, _, dt = self._h_segments(seen, cal, 1.0 / (p["n_A"] * p["C_p"]), 0.0, drift_cols=False)
-        model = PreisachH(n_grid=12, n_play=6, ridge=1e-4)
+        model = _reference_h()
         model.fit(qs, ys, dt, extra=ex)
         self.amplifier_["h_rows"] = int(model.fit_report_.get("n_samples", 0))
         return model
@@ -1220,8 +1239,6 @@ class SelfSensingEstimator:
         from scipy.optimize import minimize_scalar
 
         from selfsense.chain.charge import QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, charge_resolution, quantiser_column
-        from selfsense.hysteresis.models import PreisachH, fit_stride
-        from selfsense.hysteresis.models.select import _cv_linear, blocked_folds
 
         mode = self._member_modes()["quantiser"]
         if mode == "auto" and self.config.quantiser == "off":
@@ -1258,19 +1275,9 @@ class SelfSensingEstimator:
             qs, ys, ex, _, _, dt = self._h_segments(moved, cal, slope, 0.0, drift_cols=False)
             return qs, ys, ex, dt
 
-        def insample(i_q):
-            qs, ys, ex, dt = rows(i_q)
-            return _insample(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex)
-
-        def cv(i_q):
-            qs, ys, ex, dt = rows(i_q)
-            k = fit_stride([len(q) for q in qs])
-            folds = blocked_folds([len(q[::k]) for q in qs], 3)
-            return float(np.mean(_cv_linear(PreisachH(n_grid=12, n_play=6, ridge=1e-4), qs, ys, dt, ex, folds, 8)))
-
-        i_q = float(minimize_scalar(insample, bounds=(-bound, bound), method="bounded",
+        i_q = float(minimize_scalar(lambda i: _reference_insample(*rows(i)), bounds=(-bound, bound), method="bounded",
                                     options={"xatol": bound * 1e-3}).x)
-        cv0, cv1 = cv(0.0), cv(i_q)
+        cv0, cv1 = _reference_cv(*rows(0.0)), _reference_cv(*rows(i_q))
         interior = abs(i_q) < QUANTISER_AT_BOUND * bound
         ok = bool(cv1 < QUANTISER_CV_RATIO * cv0 and interior)
         applied = ok or mode == "on"
