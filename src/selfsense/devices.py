@@ -76,22 +76,33 @@ def simulate_device(sc: Mapping[str, Any], with_truth: bool = False) -> tuple[di
 
 def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
                protocol: str = "three_trial", randomise: str = "hysteresis",
-               device_overrides: Mapping[str, Any] | None = None) -> dict:
+               device_overrides: Mapping[str, Any] | None = None, members: Mapping[str, str] | None = None) -> dict:
     """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials; the
     mixed-drive validation trials also on their own). ``device_overrides``: device quantities set after the draw
-    (e.g. ``{"adc_bits": 18}``: the same device, drive and noise with a finer ADC), recorded as ``override_<name>``."""
+    (e.g. ``{"adc_bits": 18}``: the same device, drive and noise with a finer ADC), recorded as ``override_<name>``.
+    ``members``: chain members forced on or off (``SelfSensingEstimator(members=...)``, e.g.
+    ``{"offset_drift": "on"}``: what a member would give where the calibration's gate does not adopt it), recorded
+    as ``member_<name>``. The record also says which charge-link members the fit carries (``offset_drift``,
+    ``leakage_ns``)."""
     from selfsense import io as sio
     from selfsense.report import tables
     from selfsense.sensing import SelfSensingEstimator
     from selfsense.stages import sensing_config
 
+    from selfsense.sensing.estimator import CHAIN_MEMBER_NAMES
+
+    bad = {k: v for k, v in (members or {}).items() if k not in CHAIN_MEMBER_NAMES or v not in ("auto", "on", "off")}
+    if bad:
+        raise ValueError(f"members {bad}: expected names among {', '.join(CHAIN_MEMBER_NAMES)} with modes 'auto', "
+                         "'on' or 'off'")
     cfg = dict(config or _default_pipeline_config())
     sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides)
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
                            "randomise": randomise, **{f"device_{k}": v for k, v in sc.get("randomise", {}).items()},
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0),
-                           **{f"override_{k}": v for k, v in (device_overrides or {}).items()}}
+                           **{f"override_{k}": v for k, v in (device_overrides or {}).items()},
+                           **{f"member_{k}": str(v) for k, v in (members or {}).items()}}
     try:
         sigs, meta, rig, _ = simulate_device(sc)
     except sio.ContractError as exc:  # the generator made a dataset the contract rejects: a benchmark failure
@@ -99,7 +110,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
                     "displacement_pct": float("nan"), "force_pct": float("nan")})
         return rec
     try:
-        est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig).fit(sigs, meta)
+        est = SelfSensingEstimator(config=sensing_config(cfg), rig=rig, members=dict(members or {})).fit(sigs, meta)
     except Exception as exc:  # a failed calibration is a result of the benchmark, recorded as such
         rec.update({"status": "calibration_failed", "error": f"{type(exc).__name__}: {exc}",
                     "displacement_pct": float("nan"), "force_pct": float("nan")})
@@ -128,6 +139,8 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "charge_resolution_dx_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_dx_pct", 0.0)),
         "charge_resolution_f_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_f_pct", 0.0)),
         "charge_resolution_h_v": float(est.fit_report_.get("charge_resolution", {}).get("calibration_h_target_v", 0.0)),
+        "offset_drift": bool(est.offset_drift_),
+        "leakage_ns": float(est.leakage_s_) * 1e9,
         "quantiser": bool((est.quantiser_ or {}).get("applied", False)),
         "quantiser_i_q_na": float((est.quantiser_ or {}).get("i_q_a", 0.0)) * 1e9,
         "regression": str(est.fit_report_.get("regression_form", "")),
@@ -200,18 +213,20 @@ def _config_from(path: str | None) -> dict:
 
 
 def _job(args):
-    family, preset, seed, cfg, out, protocol, randomise, overrides = args
-    rec = run_device(family, preset, seed, cfg, protocol, randomise, overrides)
+    family, preset, seed, cfg, out, protocol, randomise, overrides, members = args
+    rec = run_device(family, preset, seed, cfg, protocol, randomise, overrides, members)
     write_record(rec, out)
     return rec
 
 
 def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
           first_seed: int = 0, progress: bool = True, protocol: str = "three_trial",
-          randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None) -> pd.DataFrame:
+          randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None,
+          members: Mapping[str, str] | None = None) -> pd.DataFrame:
     """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
     file per device under ``out_dir/records`` (existing records are reused: resumable), then write
-    ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``."""
+    ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``. ``device_overrides`` and ``members``: as
+    :func:`run_device`, the same for every device."""
     import os
     from concurrent.futures import ProcessPoolExecutor
 
@@ -229,13 +244,18 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
                     if over != dict(device_overrides or {}):
                         raise ValueError(f"{p}: a record with device overrides {over}; this run asks for "
                                          f"{dict(device_overrides or {})}: use another --out folder")
+                    forced = {k[len("member_"):]: v for k, v in rec.items() if k.startswith("member_")}
+                    if forced != {k: str(v) for k, v in (members or {}).items()}:
+                        raise ValueError(f"{p}: a record with members forced {forced}; this run asks for "
+                                         f"{dict(members or {})}: use another --out folder")
                     if (rec.get("protocol", "three_trial"), rec.get("randomise", "hysteresis")) != (protocol, randomise):
                         raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}, "
                                          f"randomisation {rec.get('randomise', 'hysteresis')!r}; this run asks for "
                                          f"{protocol!r}, {randomise!r}: use another --out folder")
                     recs.append(rec)
                 else:
-                    todo.append((fam, pre, seed, config, str(p), protocol, randomise, dict(device_overrides or {})))
+                    todo.append((fam, pre, seed, config, str(p), protocol, randomise, dict(device_overrides or {}),
+                                 dict(members or {})))
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from tqdm import tqdm

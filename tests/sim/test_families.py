@@ -194,3 +194,32 @@ def test_device_overrides_are_checked_and_recorded(tmp_path):
     out = bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
                 device_overrides={"adc_bits": 18})   # resumed: nothing simulated
     assert out.loc[0, "displacement_median_pct"] == pytest.approx(1.0)
+
+
+def test_forced_members_are_checked_and_recorded(tmp_path):
+    """``selfsense devices bench --member NAME=on|off`` (run_device's ``members``): an unknown member or mode is
+    refused with its name before anything is simulated (not recorded as a failed calibration), and a resumed folder
+    made with other forced members is refused, so that forced and decided members never mix in one table."""
+    import json
+
+    from selfsense.cli.devices import _members, main
+    from selfsense.devices import bench, run_device
+
+    assert _members(["offset_drift=on", "leakage=off"]) == {"offset_drift": "on", "leakage": "off"}
+    for bad in (["offset_drift"], ["offset_drift=maybe"], ["drift=on"]):
+        with pytest.raises(ValueError, match="--member: expected NAME=on or NAME=off"):
+            _members(bad)
+    with pytest.raises(ValueError, match=r"members \{'ofset_drift': 'on'\}"):
+        run_device("preisach", "clean", 0, members={"ofset_drift": "on"})
+    assert main(["bench", "--n", "1", "--families", "gpi", "--presets", "clean", "--member", "offset_drift=yes",
+                 "--out", str(tmp_path / "x")]) == 2
+    rec_dir = tmp_path / "b" / "records"
+    rec_dir.mkdir(parents=True)
+    (rec_dir / "gpi_clean_0.json").write_text(json.dumps(
+        {"family": "gpi", "preset": "clean", "seed": 0, "protocol": "thesis", "randomise": "device",
+         "member_offset_drift": "on", "status": "ok", "displacement_pct": 2.0, "force_pct": 1.0}))
+    with pytest.raises(ValueError, match="members forced"):
+        bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False)
+    out = bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
+                members={"offset_drift": "on"})   # resumed: nothing simulated
+    assert out.loc[0, "displacement_median_pct"] == pytest.approx(2.0)

@@ -27,6 +27,20 @@ def _overrides(items) -> dict:
     return out
 
 
+def _members(items) -> dict:
+    """``["offset_drift=on", ...]`` -> ``{"offset_drift": "on"}`` (a chain member forced on or off)."""
+    from selfsense.sensing.estimator import CHAIN_MEMBER_NAMES
+
+    out = {}
+    for item in items:
+        name, sep, mode = str(item).partition("=")
+        if not sep or name not in CHAIN_MEMBER_NAMES or mode not in ("on", "off"):
+            raise ValueError(f"--member: expected NAME=on or NAME=off with NAME one of "
+                             f"{', '.join(CHAIN_MEMBER_NAMES)}, found {item!r}")
+        out[name] = mode
+    return out
+
+
 def main(argv=None) -> int:
     import argparse
 
@@ -48,6 +62,8 @@ def main(argv=None) -> int:
                         "dielectric relaxation and drive holds (docs/simulator.md)")
     r.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="device quantity set after the draw, e.g. --set adc_bits=18; repeatable")
+    r.add_argument("--member", action="append", default=[], metavar="NAME=on|off",
+                   help="a chain member of the estimator forced on or off, e.g. --member offset_drift=on; repeatable")
     r.add_argument("--out", required=True, help="record file (JSON) to write")
     t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
     t.add_argument("records", nargs="+", help="record JSON files")
@@ -68,12 +84,15 @@ def main(argv=None) -> int:
     b.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="device quantity set after the draw, e.g. --set adc_bits=18 (the same devices, drives and "
                         "noise with a finer ADC); repeatable")
+    b.add_argument("--member", action="append", default=[], metavar="NAME=on|off",
+                   help="a chain member of the estimator forced on or off on every device, e.g. --member "
+                        "offset_drift=on; repeatable")
     b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "run":
             rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol, a.randomise,
-                             _overrides(a.set))
+                             _overrides(a.set), _members(a.member))
             write_record(rec, a.out)
             print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
                   f"force {rec['force_pct']:.2f} % ({rec['status']})")
@@ -91,7 +110,7 @@ def main(argv=None) -> int:
                 if p not in PRESETS:
                     raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
             bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol,
-                  randomise=a.randomise, device_overrides=_overrides(a.set))
+                  randomise=a.randomise, device_overrides=_overrides(a.set), members=_members(a.member))
             print(Path(a.out) / "cross_device.md")
     except (ValueError, OSError) as exc:
         print(f"selfsense devices: error: {exc}", file=sys.stderr)

@@ -54,6 +54,9 @@ __all__ = [
 H_MODES = ("thesis", "onsite")
 H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
+#: the chain members ``SelfSensingEstimator(members=...)`` can force: charge link (leakage, offset drift, absorption,
+#: quantiser), H link (hold rows), voltage link (amplifier)
+CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
 #: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
 N_DRIFT_ALTERNATIONS = 1
@@ -838,7 +841,7 @@ class SelfSensingEstimator:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
         the ``members`` forced values, "auto" where not forced."""
         out = {}
-        for k in ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser"):
+        for k in CHAIN_MEMBER_NAMES:
             m = str(self.members.get(k, "auto"))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
