@@ -92,3 +92,21 @@ def test_docs_state_the_thresholds_the_code_uses(const, pct):
               "LEAK_HOLD_CONTRADICTION": r"more than (\d+) % of the conductance the holds"}[const]
     m = re.search(phrase, text.replace("\n", " ").replace("  ", " "))
     assert m and m.group(1) == pct, (const, m.group(0) if m else None)
+
+
+def test_offset_drift_config_forces_the_member_and_forced_members_win():
+    """``calibration: offset_drift: on|off`` forces the charge link's offset-drift member for every fit of the
+    configuration (the gap diagnostic's own forcing through ``members`` still wins); YAML's unquoted on / off
+    (booleans) mean the same; an unknown value, or ``on`` with ``drift: off``, is refused by name."""
+    rig = {"n_actuators": 2, "actuator_catalog": {"capacitance_f": 1e-6}}
+    on = E.SensingConfig.from_mapping({"offset_drift": True})
+    assert on.offset_drift == "on" and E.SensingConfig.from_mapping({"offset_drift": False}).offset_drift == "off"
+    assert E.SelfSensingEstimator(config=on, rig=rig)._member_modes()["offset_drift"] == "on"
+    assert E.SelfSensingEstimator(config=E.SensingConfig(), rig=rig)._member_modes()["offset_drift"] == "auto"
+    forced = E.SelfSensingEstimator(config=on, rig=rig, members={"offset_drift": "off"})
+    assert forced._member_modes()["offset_drift"] == "off"
+    assert E.SelfSensingEstimator(config=on, rig=rig)._member_modes()["leakage"] == "auto"
+    with pytest.raises(ValueError, match="SensingConfig.offset_drift: expected 'auto', 'on' or 'off'"):
+        E.SensingConfig(offset_drift="sometimes")
+    with pytest.raises(ValueError, match="offset_drift 'on' needs drift 'auto'"):
+        E.SensingConfig(offset_drift="on", drift="off")

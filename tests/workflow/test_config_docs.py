@@ -60,6 +60,7 @@ def test_documented_defaults_and_allowed_values_match_the_schema(section, props)
             want = {True: "true", False: "false"}.get(want, want) if isinstance(want, bool) else want
             assert f"`{want}`" in default, f"{section}.{key}: schema default {want!r}, docs say {default!r}"
         for value in spec.get("enum", []):
+            value = {True: "true", False: "false"}.get(value, value) if isinstance(value, bool) else value
             assert f"`{value}`" in kind, f"{section}.{key}: allowed value {value!r} not documented ({kind!r})"
         for value in spec.get("items", {}).get("enum", []):
             assert f"`{value}`" in kind, f"{section}.{key}: allowed value {value!r} not documented ({kind!r})"

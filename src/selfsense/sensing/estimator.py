@@ -95,6 +95,9 @@ class SensingConfig:
     #: off by default: measured on the whole-device benchmark it lowers the force error and raises the displacement
     #: error of the rate-dependent devices (docs/cross_device.md, "The quantiser member")
     quantiser: str = "off"
+    #: the offset-drift member: "auto" where the calibration rows support it, "on" on every trial's rest segments
+    #: (docs/cross_device.md, "The offset-drift member forced on"), "off" never
+    offset_drift: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -119,6 +122,11 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.absorption: expected 'auto' or 'off', found {self.absorption!r}")
         if self.quantiser not in ("auto", "off"):
             raise ValueError(f"SensingConfig.quantiser: expected 'auto' or 'off', found {self.quantiser!r}")
+        if self.offset_drift not in ("auto", "on", "off"):
+            raise ValueError(f"SensingConfig.offset_drift: expected 'auto', 'on' or 'off', found {self.offset_drift!r}")
+        if self.offset_drift == "on" and self.drift == "off":
+            raise ValueError("SensingConfig: offset_drift 'on' needs drift 'auto' (drift 'off' turns the charge link's "
+                             "leakage and offset-drift members off)")
         if int(self.cv_blocks) < 2:
             raise ValueError(f"SensingConfig.cv_blocks: expected an integer >= 2, found {self.cv_blocks!r}")
         if self.regression not in REGRESSIONS:
@@ -136,6 +144,8 @@ class SensingConfig:
         unknown = sorted(set(cfg) - known)
         if unknown:
             raise ValueError(f"sensing config: unknown keys {unknown}; expected some of {sorted(known)}")
+        if isinstance(cfg.get("offset_drift"), bool):   # YAML 1.1 reads an unquoted on / off as true / false
+            cfg["offset_drift"] = "on" if cfg["offset_drift"] else "off"
         return cls(**cfg)
 
 
@@ -839,10 +849,12 @@ class SelfSensingEstimator:
 
     def _member_modes(self) -> dict:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
-        the ``members`` forced values, "auto" where not forced."""
+        the ``members`` forced values, else the configuration's (``SensingConfig.offset_drift``), "auto" where
+        neither forces one."""
         out = {}
+        configured = {"offset_drift": getattr(self.config, "offset_drift", "auto")}
         for k in CHAIN_MEMBER_NAMES:
-            m = str(self.members.get(k, "auto"))
+            m = str(self.members.get(k, configured.get(k, "auto")))
             if m not in ("auto", "on", "off"):
                 raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
             out[k] = m
