@@ -89,12 +89,9 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense.sensing import SelfSensingEstimator
     from selfsense.stages import sensing_config
 
-    from selfsense.sensing.estimator import CHAIN_MEMBER_NAMES
+    from selfsense.sensing.estimator import member_modes
 
-    bad = {k: v for k, v in (members or {}).items() if k not in CHAIN_MEMBER_NAMES or v not in ("auto", "on", "off")}
-    if bad:
-        raise ValueError(f"members {bad}: expected names among {', '.join(CHAIN_MEMBER_NAMES)} with modes 'auto', "
-                         "'on' or 'off'")
+    member_modes(members)   # an unknown member or mode is refused here, not recorded as a failed calibration
     cfg = dict(config or _default_pipeline_config())
     sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides)
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
@@ -230,6 +227,9 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
     import os
     from concurrent.futures import ProcessPoolExecutor
 
+    from selfsense.sensing.estimator import member_modes
+
+    member_modes(members)   # before any device starts
     out_dir = Path(out_dir)
     rec_dir = out_dir / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)

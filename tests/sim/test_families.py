@@ -206,11 +206,16 @@ def test_forced_members_are_checked_and_recorded(tmp_path):
     from selfsense.devices import bench, run_device
 
     assert _members(["offset_drift=on", "leakage=off"]) == {"offset_drift": "on", "leakage": "off"}
-    for bad in (["offset_drift"], ["offset_drift=maybe"], ["drift=on"]):
+    for bad in (["offset_drift"], ["offset_drift=maybe"]):
         with pytest.raises(ValueError, match="--member: expected NAME=on or NAME=off"):
             _members(bad)
-    with pytest.raises(ValueError, match=r"members \{'ofset_drift': 'on'\}"):
+    with pytest.raises(ValueError, match=r"unknown members \['drift'\]"):
+        _members(["drift=on"])
+    with pytest.raises(ValueError, match=r"unknown members \['ofset_drift'\]"):
         run_device("preisach", "clean", 0, members={"ofset_drift": "on"})
+    with pytest.raises(ValueError, match=r"members\['leakage'\]: expected 'auto', 'on' or 'off'"):
+        bench(1, ["gpi"], ["clean"], 1, tmp_path / "y", members={"leakage": "sometimes"})
+    assert not (tmp_path / "y").exists()
     assert main(["bench", "--n", "1", "--families", "gpi", "--presets", "clean", "--member", "offset_drift=yes",
                  "--out", str(tmp_path / "x")]) == 2
     rec_dir = tmp_path / "b" / "records"

@@ -358,6 +358,23 @@ def _insample(model, qs, ys, dt, extras, thin: int = 16, drop=None) -> float:
     return float(np.sqrt(np.mean((X @ w - y) ** 2)))
 
 
+def member_modes(members: Mapping[str, str] | None, configured: Mapping[str, str] | None = None) -> dict:
+    """Every chain member's mode: the forced value of ``members``, else the configuration's (``configured``), else
+    "auto". An unknown member or a mode other than "auto", "on" or "off" raises a ValueError naming it."""
+    members = dict(members or {})
+    unknown = sorted(set(members) - set(CHAIN_MEMBER_NAMES))
+    if unknown:
+        raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected "
+                         f"{', '.join(CHAIN_MEMBER_NAMES)}")
+    out = {}
+    for k in CHAIN_MEMBER_NAMES:
+        m = str(members.get(k, (configured or {}).get(k, "auto")))
+        if m not in ("auto", "on", "off"):
+            raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
+        out[k] = m
+    return out
+
+
 def _reference_h():
     """The reference H(q) of the charge-link searches (leakage, quantiser, amplifier rows): a 12 x 12 Preisach grid
     with 6 plays, creep and ridge 1e-4, fixed whatever H(q) the configuration selects, so that a search's numbers
@@ -851,18 +868,7 @@ class SelfSensingEstimator:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
         the ``members`` forced values, else the configuration's (``SensingConfig.offset_drift``), "auto" where
         neither forces one."""
-        out = {}
-        configured = {"offset_drift": getattr(self.config, "offset_drift", "auto")}
-        for k in CHAIN_MEMBER_NAMES:
-            m = str(self.members.get(k, configured.get(k, "auto")))
-            if m not in ("auto", "on", "off"):
-                raise ValueError(f"SelfSensingEstimator.members[{k!r}]: expected 'auto', 'on' or 'off', found {m!r}")
-            out[k] = m
-        unknown = sorted(set(self.members) - set(out))
-        if unknown:
-            raise ValueError(f"SelfSensingEstimator.members: unknown members {unknown}; expected leakage, offset_drift, "
-                             f"hold_rows, amplifier, absorption, quantiser")
-        return out
+        return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
