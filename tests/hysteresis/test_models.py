@@ -332,3 +332,37 @@ def test_incremental_preisach_grid_equals_integrating_every_cell(seed):
     st = grid_state(n)
     parts = np.split(u, sorted(set(rng.integers(1, N, 4).tolist())))
     np.testing.assert_array_equal(np.concatenate([preisach_grid_output(p, lo, hi, n, w, st) for p in parts]), got)
+
+
+def test_tall_rows_are_reduced_blockwise_to_the_same_fit(monkeypatch):
+    """ridge_lstsq on rows taller than two QR blocks factors them block by block (qr_reduce's tall-skinny QR):
+    the same triangular factor up to row signs, and the same ridge solution (penalty and column scaling of the
+    rows), as one factorisation of all rows; a model's design written into a block of a stacked matrix equals the
+    design on its own."""
+    import selfsense.hysteresis.models as M
+
+    rng = np.random.default_rng(8)
+    X = rng.standard_normal((5000, 12)) * np.logspace(-3, 2, 12)
+    X[:, 3] = X[:, 2] + 1e-9 * rng.standard_normal(5000)   # nearly collinear: the rank-revealing solve must agree
+    y = X @ rng.standard_normal(12) + 0.1 * rng.standard_normal(5000)
+    pen = np.arange(12) % 2 == 0
+    direct = M.ridge_lstsq(X, y, pen, 1e-3)             # 5000 rows: below two blocks of 4096, no reduction
+    monkeypatch.setattr(M, "QR_BLOCK_ROWS", 700)         # now 8 blocks
+    blocked = M.ridge_lstsq(X, y, pen, 1e-3)
+    np.testing.assert_allclose(blocked, direct, rtol=1e-8, atol=1e-10)
+    R_blocked = M.qr_reduce(X, y)[0]
+    monkeypatch.setattr(M, "QR_BLOCK_ROWS", 10 ** 9)
+    R_direct = M.qr_reduce(X, y)[0]
+    np.testing.assert_allclose(np.abs(R_blocked), np.abs(R_direct), rtol=1e-9, atol=1e-9 * np.abs(R_direct).max())
+    # the objective, not only the point: a wrong reduction would change the fit residual
+    assert np.sum((X @ blocked - y) ** 2) == pytest.approx(np.sum((X @ direct - y) ** 2), rel=1e-12)
+
+    model = PreisachH(n_grid=5, n_play=4, ridge=1e-3, creep=True).prepare(_drive(seed=4), DT)
+    q = _drive(n=3001, seed=5)
+    alone, _ = model.design(q, DT, 3)
+    out = np.full((alone.shape[0] + 4, alone.shape[1] + 2), np.nan)
+    model.design(q, DT, 3, out=out[2:-2])
+    np.testing.assert_array_equal(out[2:-2, :alone.shape[1]], alone)
+    assert np.isnan(out[:2]).all() and np.isnan(out[2:-2, alone.shape[1]:]).all()
+    with pytest.raises(ValueError, match="rows"):
+        model.design(q, DT, 3, out=np.empty((alone.shape[0] - 1, alone.shape[1])))

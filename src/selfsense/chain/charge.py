@@ -450,13 +450,19 @@ def fit_absorption(free_trials: Mapping[str, pd.DataFrame], taus: tuple = ABSORP
         col = np.concatenate([column(V, dt)[m] for _, m, dt, _, V, _ in rows])
         return np.column_stack([X0[:, :3], col, X0[:, 3:]])
 
+    held = [b == i for i in range(n_blocks)]
+
     def cv(X, y, b):
         s = np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-300)   # column scaling for the conditioning only
         Xs = X / s
+        # each block's rows reduced once to the triangular factor of [Xs | y]; fold i is solved on the stacked
+        # factors of the other blocks (the same minimiser as on their rows)
+        R = [np.linalg.qr(np.column_stack([Xs[h], y[h]]), mode="r") for h in held]
+        p = X.shape[1]
         err = []
-        for i in range(n_blocks):
-            h = b == i
-            beta = np.linalg.lstsq(Xs[~h], y[~h], rcond=None)[0]
+        for i, h in enumerate(held):
+            T = np.vstack([r for j, r in enumerate(R) if j != i])
+            beta = np.linalg.lstsq(T[:, :p], T[:, p], rcond=None)[0]
             err.append(Xs[h] @ beta - y[h])
         e = np.concatenate(err)
         return float(np.sqrt(np.mean(e * e)))

@@ -169,10 +169,17 @@ class PrehistoryH:
         self.inner.prepare([self.prehistory] + [np.asarray(x, float) for x in qs], dt)
         return self
 
-    def design(self, q, dt: float, stride: int = 1):
+    def n_columns(self) -> int:
+        return self.inner.n_columns()
+
+    def design(self, q, dt: float, stride: int = 1, out: np.ndarray | None = None):
         p = self._pad(int(stride))
         X, pen = self.inner.design(np.concatenate([p, np.asarray(q, float)]), dt, int(stride))
-        return X[p.size // int(stride):], pen
+        X = X[p.size // int(stride):]
+        if out is None:
+            return X, pen
+        out[:, :X.shape[1]] = X
+        return out[:, :X.shape[1]], pen
 
     def fit(self, q, v, dt: float, extra=None):
         from .models import LinearParamH

@@ -28,6 +28,44 @@ STYLE = {
     "path.simplify": True,
 }
 
+#: samples drawn per trace against time at most: longer traces are drawn from their min-max envelope
+#: (:func:`_envelope`), twice as many points as the widest panel has pixels at ``savefig.dpi`` times four
+FIGURE_TRACE_POINTS = 4000
+
+
+def _envelope(x, y, n_points: int = FIGURE_TRACE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y)`` thinned for drawing: the samples are cut into ``n_points / 2`` consecutive bins and each bin keeps
+    its smallest and its largest ``y`` (in time order), so every peak and every spike stays drawn, at a cost that does
+    not grow with the record. A bin without a finite ``y`` keeps one NaN sample (a gap stays a gap). Traces of at most
+    ``n_points`` samples are returned as they are."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = y.size
+    if n <= n_points:
+        return x, y
+    nb = max(n_points // 2, 1)
+    w = -(-n // nb)
+    nb = -(-n // w)
+    Y = np.full(nb * w, np.nan)
+    Y[:n] = y
+    Y = Y.reshape(nb, w)
+    bad = np.isnan(Y)
+    lo = np.where(bad, np.inf, Y).argmin(axis=1)
+    hi = np.where(bad, -np.inf, Y).argmax(axis=1)
+    first = np.where(bad.all(axis=1), 0, np.minimum(lo, hi))
+    second = np.where(bad.all(axis=1), 0, np.maximum(lo, hi))
+    base = np.arange(nb) * w
+    idx = np.unique(np.concatenate([base + first, base + second]))
+    idx = idx[idx < n]
+    return x[idx], y[idx]
+
+
+def _trace(ax, x, y, **kw):
+    """``ax.plot`` of a trace against time, drawn from its envelope (:func:`_envelope`)."""
+    xe, ye = _envelope(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    return ax.plot(xe, ye, **kw)
+
+
 #: figure file stem -> (thesis figure, paper figure, title)
 FIGURES = {
     "fig17_voltage_charge": ("Fig. 17", "Fig. 8", "Hysteresis between actuator voltage and charge, with minor loops"),
@@ -85,6 +123,15 @@ def _arrows(ax, x: np.ndarray, y: np.ndarray, colors, n: int = 14) -> None:
                     arrowprops=dict(arrowstyle="-|>", color=colors[i], lw=1.0, mutation_scale=11))
 
 
+def _colour_runs(norm, t: np.ndarray, n_colours: int) -> np.ndarray:
+    """Indices where a run of consecutive values of ``t`` that map to one entry of an ``n_colours`` lookup table
+    (matplotlib's ``Colormap.__call__``: ``int(norm(t) N)``, the top value in the last entry) begins."""
+    k = np.clip((np.asarray(norm(t), dtype=float) * n_colours), -1, n_colours)
+    k[k == n_colours] = n_colours - 1
+    k = np.floor(k).astype(int)
+    return np.flatnonzero(np.r_[True, np.diff(k) != 0])
+
+
 def fig_voltage_charge(sig: pd.DataFrame, out_dir: Path, trial: str) -> str:
     """Thesis Fig. 17: V-q loops coloured by time (colour bar) with direction arrows, so the minor loops and their
     order can be told apart."""
@@ -97,10 +144,15 @@ def fig_voltage_charge(sig: pd.DataFrame, out_dir: Path, trial: str) -> str:
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(6.2, 4.2))
         pts = np.column_stack([V, q])
-        segs = np.stack([pts[:-1], pts[1:]], axis=1)
         norm = plt.Normalize(float(t.min()), float(t.max())) if len(t) else None
+        # one polyline per colour of the map: the segments whose start time falls on the same entry of the
+        # colormap's lookup table are drawn as one path (the same colours as one segment per sample, at a cost
+        # bounded by the table's size, not by the record's length)
+        starts = _colour_runs(norm, t[:-1], plt.get_cmap("viridis").N) if len(t) > 1 else np.zeros(0, int)
+        ends = np.append(starts[1:], len(t) - 1)
+        segs = [pts[a:b + 1] for a, b in zip(starts, ends)]
         lc = LineCollection(segs, cmap="viridis", norm=norm, linewidths=0.9)
-        lc.set_array(t[:-1])
+        lc.set_array(t[starts])
         ax.add_collection(lc)
         ax.autoscale()
         cmap = plt.get_cmap("viridis")
@@ -120,8 +172,8 @@ def fig_input(sig: pd.DataFrame, out_dir: Path, trial: str, stem: str) -> str:
     """Thesis Figs. 22-23: the driving voltage of a trial (amplifier output V_c and actuator voltage V) vs time."""
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(7, 3.2))
-        ax.plot(sig["t"], sig["V_c"], lw=0.9, label="amplifier output V_c")
-        ax.plot(sig["t"], sig["V"], lw=0.7, ls="--", label="actuator voltage V = V_c - V_s")
+        _trace(ax, sig["t"], sig["V_c"], lw=0.9, label="amplifier output V_c")
+        _trace(ax, sig["t"], sig["V"], lw=0.7, ls="--", label="actuator voltage V = V_c - V_s")
         ax.set_xlabel("time t [s]")
         ax.set_ylabel("voltage [V]")
         _legend_above(ax, ncol=2)
@@ -141,7 +193,7 @@ def fig_h_calibration(sig: pd.DataFrame, H_target: np.ndarray, H_fit: np.ndarray
         a1.set_xlabel("charge q [µC]")
         a1.set_ylabel("H(q) [V]")
         _legend_above(a1, ncol=1)
-        a2.plot(sig["t"].to_numpy()[m], H_fit[m] - H_target[m], lw=0.6)
+        _trace(a2, sig["t"].to_numpy()[m], H_fit[m] - H_target[m], lw=0.6)
         a2.set_xlabel("time t [s]")
         a2.set_ylabel("H(q) fit error [V]")
         a2.set_title(f"RMS {rms_pct:.2f} %, max {max_pct:.2f} % of range")
@@ -154,10 +206,10 @@ def fig_limiting(est: pd.DataFrame, out_dir: Path, trial: str) -> str:
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(7, 3.5))
         t = est["t"].to_numpy()
-        ax.plot(t, est["dx_raw"].to_numpy() * 1e3, lw=0.7, label="raw estimate")
-        ax.plot(t, est["dx_hat"].to_numpy() * 1e3, lw=0.9, label="limited + sliding DC offset")
+        _trace(ax, t, est["dx_raw"].to_numpy() * 1e3, lw=0.7, label="raw estimate")
+        _trace(ax, t, est["dx_hat"].to_numpy() * 1e3, lw=0.9, label="limited + sliding DC offset")
         if np.isfinite(est["dx_ref"]).any():
-            ax.plot(t, est["dx_ref"].to_numpy() * 1e3, lw=0.7, color="k", alpha=0.6, label="reference (laser)")
+            _trace(ax, t, est["dx_ref"].to_numpy() * 1e3, lw=0.7, color="k", alpha=0.6, label="reference (laser)")
         ax.set_xlabel("time t [s]")
         ax.set_ylabel("tip displacement Δx_tip [mm]")
         _legend_above(ax)
@@ -202,8 +254,8 @@ def fig_trials(estimates: Mapping[str, pd.DataFrame], meta: pd.DataFrame, measur
         fig, axes = plt.subplots(nrow, ncol, figsize=(10 if ncol == 2 else 6, 2.5 * nrow + 0.5), squeeze=False)
         for k, (ax, trial) in enumerate(zip(axes.ravel(), trials), start=1):
             e = estimates[trial]
-            ax.plot(e["t"], e[ref] * scale, color="k", lw=0.8, alpha=0.7, label="reference")
-            ax.plot(e["t"], e[hat] * scale, lw=0.8, color="C0", label="self-sensed")
+            _trace(ax, e["t"], e[ref] * scale, color="k", lw=0.8, alpha=0.7, label="reference")
+            _trace(ax, e["t"], e[hat] * scale, lw=0.8, color="C0", label="self-sensed")
             m = meta.loc[trial]
             obj = f" {m['object_mm']} mm" if str(m["tip"]) == "object" else ""
             err = pt.loc[trial, "percent_of_range"] if trial in pt.index else float("nan")
@@ -240,10 +292,10 @@ def fig_force_displacement(est: pd.DataFrame, out_dir: Path, trial: str,
             src, who = refs[ref]
             if np.isfinite(src[ref]).any():
                 rlab = "reference" + (f" (paired trial {who}, same object and drive)" if who != trial else "")
-                ax.plot(src["t"], src[ref] * scale, color="k", lw=0.8, alpha=0.6, label=rlab)
-                ax.plot(est["t"], est[hat] * scale, lw=0.9, color=col, label="self-sensed")
+                _trace(ax, src["t"], src[ref] * scale, color="k", lw=0.8, alpha=0.6, label=rlab)
+                _trace(ax, est["t"], est[hat] * scale, lw=0.9, color=col, label="self-sensed")
             else:
-                ax.plot(est["t"], est[hat] * scale, lw=0.9, color=col,
+                _trace(ax, est["t"], est[hat] * scale, lw=0.9, color=col,
                         label=f"self-sensed (no {'laser' if ref == 'dx_ref' else 'load-cell'} reference in this trial)")
             ax.set_ylabel(f"{lab} [{unit}]")
             _legend_above(ax, ncol=2)
@@ -267,9 +319,9 @@ def fig_mismatch(est: pd.DataFrame, free_est: pd.DataFrame, out_dir: Path, trial
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(7, 3.5))
         if np.isfinite(est["f_ref"]).any():
-            ax.plot(t, est["f_ref"].to_numpy()[:n] * 1e3, color="k", lw=0.8, alpha=0.7, label="reference")
-        ax.plot(t, f * 1e3, lw=0.8, label="self-sensed (raw)")
-        ax.plot(t, (f - f0) * 1e3, lw=0.8, label=f"minus free-tip estimate ({free_trial})")
+            _trace(ax, t, est["f_ref"].to_numpy()[:n] * 1e3, color="k", lw=0.8, alpha=0.7, label="reference")
+        _trace(ax, t, f * 1e3, lw=0.8, label="self-sensed (raw)")
+        _trace(ax, t, (f - f0) * 1e3, lw=0.8, label=f"minus free-tip estimate ({free_trial})")
         ax.set_xlabel("time t [s]")
         ax.set_ylabel("tip force f_tip [mN]")
         _legend_above(ax)

@@ -44,12 +44,22 @@ def _prim(x, b0, top):
     return 0.5 * (top - b0) * (top - b0) + (top - b0) * (x - top)
 
 
-def preisach_grid_features(u, lo, hi, n, stride=1):
-    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row, from the relaxed state."""
+def preisach_grid_features(u, lo, hi, n, stride=1, out=None):
+    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row, from the relaxed state; written into
+    ``out`` (``(ceil(len(u) / stride), n (n + 1) / 2)``, any row stride, e.g. the basis columns of a design
+    matrix) when given, which is returned."""
     Ms, ms, st, Fc = grid_state(n)
     st[1] = lo
-    return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
-                 int(stride), Ms, ms, st, Fc)
+    nc = int(n) * (int(n) + 1) // 2
+    rows = (len(u) + int(stride) - 1) // int(stride)
+    if out is None:
+        out = np.zeros((rows, nc))
+    elif out.shape != (rows, nc) or out.dtype != np.float64 or out.strides[1] != 8:
+        raise ValueError(f"preisach_grid_features: out must be float64 of shape {(rows, nc)} with contiguous rows, "
+                         f"got {out.dtype} {out.shape}")
+    _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
+          int(stride), Ms, ms, st, Fc, out)
+    return out
 
 
 def preisach_grid_output(u, lo, hi, n, w, state=None):
@@ -63,8 +73,10 @@ def preisach_grid_output(u, lo, hi, n, w, state=None):
         raise ValueError(f"preisach_grid_output: state for {Fc.shape} cells, the grid has {n * (n + 1) // 2}")
     if st[2] == 0.0:
         st[1] = lo
-    return _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
-                 np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc)[:, 0]
+    F = np.zeros((len(u), 1))
+    _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
+          np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc, F)
+    return F[:, 0]
 
 
 @njit(cache=True, nogil=True)
@@ -115,9 +127,10 @@ def _mark(dirty, dl, nd, n, lo, h, a_gt, a_lt, b_lt, b_gt):
 
 
 @njit(cache=True, nogil=True)
-def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
-    """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it); with
-    ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample). The state (stacks
+def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc, F):
+    """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it), written
+    into ``F``; with ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample).
+    Weighted, ``F`` is (len(u), 1) and receives the output ``F @ w``. The state (stacks
     ``Ms``, ``ms``; ``st = [K, previous input, started]``; the cells' up-fractions ``Fc``) is read at the start and
     written back at the end.
 
@@ -136,7 +149,6 @@ def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
     (rounding cannot accumulate beyond ~1e-14 of the output's scale)."""
     N = u.size
     nc = n * (n + 1) // 2
-    F = np.zeros((N, 1)) if weighted else np.zeros(((N + stride - 1) // stride, nc))
     h = (hi - lo) / n
     cap = Ms.shape[0]
     K = int(st[0])
@@ -230,7 +242,6 @@ def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc):
     st[1] = prev
     st[2] = 1.0 if started else 0.0
     st[4] = y
-    return F
 
 
 @njit(cache=True, nogil=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq
+from . import DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq, stacked_rows
 
 log = logging.getLogger(__name__)
 
@@ -119,16 +119,10 @@ def stacked_design(model: LinearParamH, qs, ys, dt, extras, stride: int):
     """``(X, y, penalised)``: ``[design | extra columns]`` and the targets of every ``stride``-th sample of every
     segment, stacked (the operators run over every sample); ``extras`` is one array per segment, or None."""
     model.prepare(qs, dt)
-    Xs, pen = [], None
-    for q in qs:
-        X, pen = model.design(q, dt, stride)
-        Xs.append(X)
-    X = np.vstack(Xs)
     y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
-    if extras is not None:
-        E = np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)])
-        X = np.column_stack([X, E])
-        pen = np.concatenate([pen, np.zeros(E.shape[1], bool)])
+    E = (None if extras is None else
+         np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)]))
+    X, pen = stacked_rows(model, qs, dt, stride, E)
     return X, y, pen
 
 
@@ -149,23 +143,27 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin, holds=None)
     """Fold RMS of ``model``; ``extras`` per segment, ``folds`` over the stacked rows of every ``fit_stride``-th
     sample; ``holds`` (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the hold rows of every trial join the
     fit, each hold held out in one fold and scored there."""
-    X, y, pen = stacked_design(model, qs, ys, dt, extras, fit_stride([len(q) for q in qs]))
+    stride = fit_stride([len(q) for q in qs])
+    model.prepare(qs, dt)
+    y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
+    E = (None if extras is None else
+         np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)]))
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     n_cal = len(y)
     w2 = 1.0
+    Xh = None
     if holds:
         from .holds import _stride_and_weight, hold_design
 
-        Xh, yh, hid = hold_design(model, holds, dt, n_cal, X.shape[1])
+        Xh, yh, hid = hold_design(model, holds, dt, n_cal, model.n_columns() + (0 if E is None else E.shape[1]))
         w2 = _stride_and_weight(holds, n_cal)[1] ** 2
         hf = _hold_folds(hid, len(folds))
         folds = [np.concatenate([np.asarray(f, bool), h]) for f, h in zip(folds, hf)]
-        n_hx = holds.n_extra()
-        X = np.vstack([np.column_stack([X, np.zeros((len(X), n_hx))]), Xh])
         y = np.concatenate([y, yh])
-        pen = np.concatenate([pen, np.zeros(n_hx, bool)])
         keep = np.concatenate([keep, np.ones(len(yh), bool)])
+    # the stacked calibration rows ([design | extras]) with the hold rows below them, in one matrix
+    X, pen = stacked_rows(model, qs, dt, stride, E, tail=Xh)
     rms = []
     lower = model._bounds(X.shape[1])
     held_all = np.asarray(folds, bool)
