@@ -57,6 +57,11 @@ DATES = {
     "stage_chain_holds_g": "2026-11-27",
     "stage_chain_holds_g_fresh300": "2026-11-27",
     "stage_chain_holds_g_fresh400": "2026-11-27",
+    "stage_chain_corroborated": "2026-11-28",
+    "stage_chain_corroborated_fresh300": "2026-11-28",
+    "stage_chain_corroborated_fresh400": "2026-11-28",
+    "stage_chain_holds_g_fresh500": "2026-11-28",
+    "stage_chain_corroborated_fresh500": "2026-11-28",
     "whole_device_holds_g": "2026-11-27",
     "whole_device_quantiser": "2026-11-27",
     "whole_device_quantiser_bound": "2026-11-27",
@@ -137,6 +142,17 @@ COMMANDS = {
                                     "--out benchmarks/stage_chain/holds_g_fresh300",
     "stage_chain_holds_g_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
                                     "--out benchmarks/stage_chain/holds_g_fresh400",
+    "stage_chain_corroborated": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                                "--out benchmarks/stage_chain/corroborated",
+    "stage_chain_corroborated_fresh300": "python benchmarks/stage_chain.py devices --seeds 300-305 --hold-s 0 "
+                                         "--out benchmarks/stage_chain/corroborated_fresh300",
+    "stage_chain_corroborated_fresh400": "python benchmarks/stage_chain.py devices --seeds 400-405 --hold-s 0 "
+                                         "--out benchmarks/stage_chain/corroborated_fresh400",
+    "stage_chain_holds_g_fresh500": "python benchmarks/stage_chain.py devices --seeds 500-505 --hold-s 0 "
+                                    "--out benchmarks/stage_chain/holds_g_fresh500 (the code before the leakage "
+                                    "corroboration rule)",
+    "stage_chain_corroborated_fresh500": "python benchmarks/stage_chain.py devices --seeds 500-505 --hold-s 0 "
+                                         "--out benchmarks/stage_chain/corroborated_fresh500",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -412,15 +428,16 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"],
                                      history=True)
                if (ROOT / WHOLE_FM / "cross_device.csv").exists() else [])
-            # the same 100 devices with the current code (default configuration): a g the holds measure is not
-            # re-checked by the selected form
+            # the same 100 devices with the newest code scored on them (default configuration): a g the holds
+            # measure is not re-checked by the selected form; not rescored after the leakage corroboration rule
+            # (2026-11-28, docs/method.md 6c), which changes the devices where the calibration rows and the holds agree
             + (_device_table_figures(f"{WHOLE_HG}/cross_device.csv",
-                                     "whole-device randomisation, thesis calibration, current code (the holds' "
-                                     "leakage exempt from the selected-form check), seeds 0-9",
+                                     "whole-device randomisation, thesis calibration, the holds' leakage exempt from "
+                                     "the selected-form check (before the leakage corroboration rule), seeds 0-9",
                                      COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])
                + [_worst_best_fig(f"{WHOLE_HG}/cross_device.csv", "whole-device randomisation, thesis calibration, "
-                                  "current code, five families, 10 devices each", COMMANDS["whole_device_holds_g"],
-                                  DATES["whole_device_holds_g"])]
+                                  "before the leakage corroboration rule, five families, 10 devices each",
+                                  COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])]
                if (ROOT / WHOLE_HG / "cross_device.csv").exists() else [])
             # the same 100 devices with the quantiser member switched on (config quantiser: auto, not the default;
             # docs/method.md 1b'): a measured alternative, not the score of the default configuration
@@ -484,18 +501,29 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/fold_majority/records.jsonl", ", leakage fold majority and selected-form "
                 "check", "stage_chain_fold_majority"),
                ("benchmarks/stage_chain/holds_g/records.jsonl", ", the holds' leakage exempt from the selected-form "
-                "check (current code)", "stage_chain_holds_g")]
+                "check", "stage_chain_holds_g"),
+               ("benchmarks/stage_chain/corroborated/records.jsonl", ", leakage where the calibration rows and the "
+                "holds agree (current code)", "stage_chain_corroborated")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
-             ("benchmarks/stage_chain/holds_g_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
-              "code", "stage_chain_holds_g_fresh300"),
+             ("benchmarks/stage_chain/holds_g_fresh300/records.jsonl", ", seeds 300-305 (seen before), the holds' "
+              "leakage exempt from the selected-form check", "stage_chain_holds_g_fresh300"),
              ("benchmarks/stage_chain/thesis_relay_bound_fresh400/records.jsonl", ", fresh seeds 400-405, the code "
               "before the fold majority", "stage_chain_relay_bound_fresh400"),
              ("benchmarks/stage_chain/fold_majority_fresh400/records.jsonl", ", fresh seeds 400-405, leakage fold "
               "majority (its first contact)", "stage_chain_fold_majority_fresh400"),
-             ("benchmarks/stage_chain/holds_g_fresh400/records.jsonl", ", seeds 400-405 (seen once), current code",
-              "stage_chain_holds_g_fresh400")]
+             ("benchmarks/stage_chain/holds_g_fresh400/records.jsonl", ", seeds 400-405 (seen once), the holds' "
+              "leakage exempt from the selected-form check", "stage_chain_holds_g_fresh400"),
+             ("benchmarks/stage_chain/corroborated_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
+              "code", "stage_chain_corroborated_fresh300"),
+             ("benchmarks/stage_chain/corroborated_fresh400/records.jsonl", ", seeds 400-405 (seen before), current "
+              "code", "stage_chain_corroborated_fresh400"),
+             ("benchmarks/stage_chain/holds_g_fresh500/records.jsonl", ", fresh seeds 500-505, the code before the "
+              "leakage corroboration rule", "stage_chain_holds_g_fresh500"),
+             ("benchmarks/stage_chain/corroborated_fresh500/records.jsonl", ", fresh seeds 500-505, leakage where the "
+              "calibration rows and the holds agree (its first contact; current code)",
+              "stage_chain_corroborated_fresh500")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -521,8 +549,8 @@ def stage_chain_figures() -> list[Fig]:
 
     out = [row(recs, fam, what, rel, key) for fam, (recs, rel, what, key) in sorted(newest.items())]
     # on each fresh seed set: its first contact and the current code; the scorings between them are history
-    current = {"stage_chain_relay_bound_fresh", "stage_chain_holds_g_fresh300", "stage_chain_fold_majority_fresh400",
-               "stage_chain_holds_g_fresh400"}
+    current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
+               "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)

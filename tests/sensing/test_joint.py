@@ -286,3 +286,20 @@ def test_the_holds_bound_a_calibration_leakage_that_takes_up_more_than_leakage()
     assert est.leakage_s_ == g_holds and drift["leakage_s_calibration"] > 1.5 * g_holds
     assert abs(est.leakage_s_ - g_true) < abs(drift["leakage_s_calibration"] - g_true)
     assert "holds of all trials measure" in drift["note"]
+
+
+def test_leakage_is_adopted_where_two_independent_measurements_agree():
+    """Neither the calibration rows nor the holds support leakage alone: it is adopted when the two measurements of g
+    agree within 25 % of the larger, g is above 0.1 nS and the calibration rows' blocked CV is not worse with it;
+    a disagreement, a missing hold measurement, a worse CV or a g at the noise floor leave it out."""
+    from selfsense.sensing.estimator import LEAK_CORROBORATION, leakage_corroborated
+
+    assert LEAK_CORROBORATION == 0.25
+    assert leakage_corroborated(2.92e-9, 3.13e-9, 1.90, 2.20)              # Jiles-Atherton drift 301's numbers
+    assert leakage_corroborated(3.0e-9, 3.9e-9, 1.0, 1.0)                  # 23 % apart, CV equal
+    assert not leakage_corroborated(3.0e-9, 4.1e-9, 1.0, 1.1)              # 27 % apart
+    assert not leakage_corroborated(4.1e-9, 3.0e-9, 1.0, 1.1)              # either order
+    assert not leakage_corroborated(2.92e-9, 3.13e-9, 2.21, 2.20)          # the calibration CV worse with g
+    assert not leakage_corroborated(2.92e-9, None, 1.90, 2.20)             # the holds measure nothing
+    assert not leakage_corroborated(None, 3.13e-9, None, 2.20)             # no search (leakage forced off)
+    assert not leakage_corroborated(0.08e-9, 0.09e-9, 1.0, 1.1)            # below 0.1 nS

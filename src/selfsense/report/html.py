@@ -178,8 +178,10 @@ def _model_section(results_dir: Path) -> list[str]:
                 + ", identified jointly on the free-tip and force-reference calibration trials")
         drift = rep.get("drift") or {}
         if drift:
-            src = {"holds": " (from the holds of all trials)", "calibration": " (from the calibration rows)"}.get(
-                str(drift.get("source")), "")
+            src = {"holds": " (from the holds of all trials)", "calibration": " (from the calibration rows)",
+                   "holds' measurement": " (the holds' measurement, in place of a contradicted search)",
+                   "calibration and holds agree": " (from the calibration rows, agreeing with the holds of all "
+                                                  "trials)"}.get(str(drift.get("source")), "")
             kind += (f"; charge leakage {'compensated, ' + format(drift.get('leakage_s', 0) * 1e9, '.2f') + ' nS' + src if drift.get('applied') else 'not compensated'}"
                      f", offset drift {'compensated' if drift.get('offset_drift_applied') else 'not compensated'}"
                      + (f" ({html.escape(str(drift['note']))})" if drift.get("note") else ""))

@@ -412,6 +412,10 @@ LEAK_HOLD_MAX_CV_RATIO = 1.02
 #: leakage from the calibration rows is contradicted by the holds of every trial when it exceeds the conductance the
 #: holds measure (z >= Z_SUPPORT at >= 2 voltage levels) by more than this factor
 LEAK_HOLD_CONTRADICTION = 1.5
+#: leakage corroborated by two independent measurements: where neither the calibration rows nor the holds support it
+#: on their own, the calibration rows' g and the conductance the holds of every trial measure agree within this
+#: fraction of the larger, and the calibration rows' blocked-CV error is not higher with g than without
+LEAK_CORROBORATION = 0.25
 #: offset-drift compensation: the columns must lower the calibration rows' blocked-CV error by more than 1 %
 OFFSET_DRIFT_MIN_GAIN = 0.01
 #: rest offset: the constant must lower the displacement rows' blocked-CV error by more than 2 %
@@ -443,6 +447,21 @@ def leakage_measured_by_holds(ev: Mapping) -> float | None:
     ok = (g > 0 and z >= Z_SUPPORT and int(ev.get("n_levels") or 0) >= 2 and int(ev.get("n_trials") or 0) >= 2
           and bool(ev.get("resolved", True)))   # an undithered shunt channel does not resolve it (method.md 1b)
     return g if ok else None
+
+
+def leakage_corroborated(g_cal: float | None, g_holds: float | None, cv_with: float | None,
+                         cv_without: float) -> bool:
+    """Leakage that neither source supports on its own is adopted when two independent measurements of it agree:
+    the calibration rows' g (references of the calibration trials) and the conductance the holds of every trial
+    measure (:func:`leakage_measured_by_holds`: V and Q only) lie within ``LEAK_CORROBORATION`` (25 %) of the larger
+    of the two, g is above 0.1 nS, and the calibration rows' blocked-CV error is not higher with g than without.
+    (The calibration gate also asks its leave-one-block-out estimates to agree, which one block holding most of a
+    trial's ramp of int V dt defeats; the holds' own gate asks them to be long against a slow relaxation. Each
+    failure is a reason for doubt that the other, independent, measurement answers.)"""
+    if g_cal is None or g_holds is None or cv_with is None:
+        return False
+    return bool(g_cal > 0.1e-9 and abs(g_cal - g_holds) <= LEAK_CORROBORATION * max(g_cal, g_holds)
+                and cv_with <= LEAK_CAL_MAX_CV_RATIO * cv_without)
 
 
 def leakage_contradicted_by_holds(g_cal: float, g_holds: float | None) -> bool:
@@ -822,8 +841,17 @@ class SelfSensingEstimator:
         info["cv_rms_v_with_hold_g"] = best_hold if np.isfinite(best_hold) else None
         hold_ok = leakage_supported_by_holds(bool(ev.get("supported")), best_hold, base)
         g, best, source = 0.0, base, "none"
+        corroborated = (modes["leakage"] == "auto" and not (hold_ok or cal_ok)
+                        and leakage_corroborated(g_cal, g_meas, best_cal, base))
+        info["leakage_corroborated"] = corroborated
         if modes["leakage"] == "off":
             notes.append("leakage compensation off (forced)")
+        elif corroborated:
+            g, best, source = g_cal, best_cal, "calibration and holds agree"
+            notes.append(f"leakage supported by two independent measurements that agree: the calibration rows' "
+                         f"{g_cal * 1e9:.3g} nS and the {g_meas * 1e9:.3g} nS the holds of all trials measure (within "
+                         f"{LEAK_CORROBORATION:.0%}; blocked-CV error {best_cal:.4g} V against {base:.4g} V without): "
+                         "the calibration rows' g applied")
         elif hold_ok or cal_ok or modes["leakage"] == "on":
             # the supported estimates (both when forced on) compete on the calibration rows' blocked CV
             cands = [(best_hold, 0, g_hold, "holds")] if (hold_ok or (modes["leakage"] == "on" and ev.get("supported"))) \
