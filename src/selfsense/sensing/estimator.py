@@ -753,7 +753,8 @@ class SelfSensingEstimator:
         calibration error). A calibration g more than 1.5x the conductance the holds measure (z >= 4 at >= 2 levels, even
         where a slow relaxation keeps the holds from supporting leakage on their own) is contradicted: the holds' g
         takes its place if the calibration rows' blocked-CV error is not higher with it than without leakage, else
-        leakage is not applied. The offset-drift columns are applied when they lower that error by more than 1 %. ``members``
+        leakage is not applied. Where neither source supports leakage on its own, the calibration rows' g is applied
+        when the conductance the holds measure agrees with it (:func:`leakage_corroborated`). The offset-drift columns are applied when they lower that error by more than 1 %. ``members``
         forces either on or off. Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
         """
         from scipy.optimize import minimize_scalar
