@@ -176,7 +176,7 @@ class LinearParamH:
             if not isinstance(extra, (list, tuple)):   # stacked rows of all segments -> one array per segment
                 stacked = np.asarray(extra, dtype=float).reshape(sum(len(x) for x in qs), -1)
                 extra = np.split(stacked, np.cumsum([len(x) for x in qs])[:-1])
-            E = np.vstack([np.asarray(e, dtype=float).reshape(len(x), -1)[::k] for e, x in zip(extra, qs)])
+            E = stacked_extra(extra, qs, k)
         n_hold = n_hx = 0
         Xh = None
         if holds:
@@ -272,6 +272,14 @@ class LinearParamH:
     def label(self) -> str:
         extra = ", ".join(f"{k}={v}" for k, v in self._params().items())
         return f"{self.kind}({extra}{', ' if extra else ''}ridge={self.ridge:g}{', creep' if self.creep else ''})"
+
+
+def stacked_extra(extras, qs, stride: int) -> np.ndarray | None:
+    """The extra columns of every ``stride``-th sample of every segment, stacked (``extras``: one array per segment
+    of ``qs``, or None)."""
+    if extras is None:
+        return None
+    return np.vstack([np.asarray(e, dtype=float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)])
 
 
 def stacked_rows(model: LinearParamH, qs, dt: float, stride: int, E: np.ndarray | None = None,

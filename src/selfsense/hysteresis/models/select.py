@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq, stacked_rows
+from . import (DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq, stacked_extra,
+               stacked_rows)
 
 log = logging.getLogger(__name__)
 
@@ -120,8 +121,7 @@ def stacked_design(model: LinearParamH, qs, ys, dt, extras, stride: int):
     segment, stacked (the operators run over every sample); ``extras`` is one array per segment, or None."""
     model.prepare(qs, dt)
     y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
-    E = (None if extras is None else
-         np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)]))
+    E = stacked_extra(extras, qs, stride)
     X, pen = stacked_rows(model, qs, dt, stride, E)
     return X, y, pen
 
@@ -146,8 +146,7 @@ def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin, holds=None)
     stride = fit_stride([len(q) for q in qs])
     model.prepare(qs, dt)
     y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
-    E = (None if extras is None else
-         np.vstack([np.asarray(e, float).reshape(len(q), -1)[::stride] for e, q in zip(extras, qs)]))
+    E = stacked_extra(extras, qs, stride)
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     n_cal = len(y)
