@@ -366,3 +366,57 @@ def test_tall_rows_are_reduced_blockwise_to_the_same_fit(monkeypatch):
     assert np.isnan(out[:2]).all() and np.isnan(out[2:-2, alone.shape[1]:]).all()
     with pytest.raises(ValueError, match="rows"):
         model.design(q, DT, 3, out=np.empty((alone.shape[0] - 1, alone.shape[1])))
+
+
+def _rows_case():
+    """Two calibration segments with an extra (joint) column and a trial of reference-free holds with a hold-only
+    column: every kind of row the final fit of a selection stacks."""
+    from selfsense.hysteresis.models.holds import HoldSet
+
+    q1, q2, qh = _drive(seed=3), _drive(seed=4), _drive(seed=5)
+    u = lambda q: q / QREF
+    t = lambda q: np.arange(q.size) * DT
+    y = [40 * u(q) + 5 * play_operator(u(q), [0.15])[:, 0] + 0.3 * t(q) for q in (q1, q2)]
+    extras = [t(q)[:, None] for q in (q1, q2)]
+    holds = HoldSet(qs=[qh], ys=[40 * u(qh) + 5 * play_operator(u(qh), [0.15])[:, 0] + 0.1 * t(qh)],
+                    holds=[[(1000, 1400), (3000, 3600), (5000, 5500)]], names=["holds"], extras=[t(qh)[:, None]])
+    return [q1, q2], y, extras, holds
+
+
+def test_selected_model_is_fitted_on_the_rows_of_its_cv_bit_for_bit(monkeypatch):
+    """One candidate after the other, the selection keeps the stacked least-squares rows of its best candidate so
+    far, and the selected model's final fit solves them as they are (models.FitRows) instead of building them
+    again: the same model, bit for bit, as a fit that builds them (extra columns, hold rows, hold-only columns)."""
+    from selfsense.hysteresis.models import LinearParamH
+
+    qs, y, extras, holds = _rows_case()
+    cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}))
+    given = []
+    fit = LinearParamH.fit
+
+    def spy(self, *a, rows=None, **k):
+        given.append(rows is not None)
+        return fit(self, *a, rows=rows, **k)
+
+    monkeypatch.setattr(LinearParamH, "fit", spy)
+    sel = select_h_model(qs, y, DT, extras=extras, candidates=cands, holds=holds)
+    assert given == [True]   # the final fit only (the CV solves its folds itself), on the kept rows
+    best = next(r for r in sel.table if r["selected"])
+    ref = fit(make_model(best["kind"], **best["params"]), qs, y, DT, extra=extras, holds=holds)
+    assert ref.coef_.tobytes() == sel.model.coef_.tobytes()
+    assert ref.extra_coef_.tobytes() == sel.extra_coef.tobytes()
+    assert ref.fit_report_ == sel.model.fit_report_
+    assert ref.fit_report_["n_hold_rows"] > 0
+
+
+def test_fit_refuses_rows_that_are_not_those_of_its_data():
+    from selfsense.hysteresis.models import fit_rows
+
+    qs, y, extras, holds = _rows_case()
+    m = PlayH(n_play=6).prepare(qs, DT)
+    rows = fit_rows(m, qs, y, DT, extras, holds)
+    assert rows.n_hold > 0 and rows.n_extra == 1 and rows.hold_id.size == rows.n_hold
+    with pytest.raises(ValueError, match="not those of"):
+        PlayH(n_play=6).fit([qs[0]], [y[0]], DT, extra=[extras[0]], holds=holds, rows=rows)
+    with pytest.raises(ValueError, match="not those of"):
+        PlayH(n_play=6).fit(qs, y, DT, rows=rows)   # the same calibration rows, but without holds

@@ -25,7 +25,7 @@ with the force coefficient on blocked-tip trials and with the charge leakage (``
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -82,6 +82,19 @@ def _segments(q, v=None):
         if vs is not None and vs[i].shape != x.shape:
             raise ValueError(f"H model fit: segment {i}: q {x.shape} and v {vs[i].shape} differ in shape")
     return qs, vs
+
+
+class FitRows(NamedTuple):
+    """The least-squares rows of :meth:`LinearParamH.fit`: ``X = [design | extra | hold-only columns]`` (calibration
+    rows, then ``n_hold`` hold rows), targets ``y``, the ridge-penalised columns, the number of extra columns and
+    the running index of each hold row's hold (for the CV folds)."""
+
+    X: np.ndarray
+    y: np.ndarray
+    penalised: np.ndarray
+    n_hold: int
+    n_extra: int
+    hold_id: np.ndarray
 
 
 class LinearParamH:
@@ -162,37 +175,33 @@ class LinearParamH:
         self._setup([self._u(x) for x in qs])
         return self
 
-    def fit(self, q, v, dt: float, extra=None, holds=None) -> "LinearParamH":
+    def fit(self, q, v, dt: float, extra=None, holds=None, *, rows: FitRows | None = None) -> "LinearParamH":
         """Ridge least squares of ``v = design(q) w + extra c`` over all segments (see the module docstring; samples
         with a non-finite ``v`` give no row);
         records longer than :data:`MAX_FIT_ROWS` samples in all are fitted on every k-th sample. ``holds``
-        (:class:`~selfsense.hysteresis.models.holds.HoldSet`) adds the reference-free hold rows of every trial."""
+        (:class:`~selfsense.hysteresis.models.holds.HoldSet`) adds the reference-free hold rows of every trial.
+        ``rows``: the stacked rows of exactly these arguments, already built for a model of the same kind and
+        parameters (:class:`FitRows`, kept by the blocked CV of the model selection), used instead of building
+        them again -- the same matrix, so the same coefficients bit for bit."""
         qs, vs = _segments(q, v)
         self.prepare(qs, dt)
         k = fit_stride([len(x) for x in qs])
-        y = np.concatenate([w[::k] for w in vs])
-        E = None
-        if extra is not None:
-            if not isinstance(extra, (list, tuple)):   # stacked rows of all segments -> one array per segment
-                stacked = np.asarray(extra, dtype=float).reshape(sum(len(x) for x in qs), -1)
-                extra = np.split(stacked, np.cumsum([len(x) for x in qs])[:-1])
-            E = stacked_extra(extra, qs, k)
-        n_hold = n_hx = 0
-        Xh = None
-        if holds:
-            from .holds import hold_design
-
-            n_hx = holds.n_extra()   # hold-only columns (drift while it is identified), not part of the model
-            Xh, yh, _ = hold_design(self, holds, dt, len(y), self.n_columns() + (0 if E is None else E.shape[1]))
-            y, n_hold = np.concatenate([y, yh]), len(yh)
-        X, pen = stacked_rows(self, qs, dt, k, E, tail=Xh)
+        n_hx = holds.n_extra() if holds else 0   # hold-only columns (drift while identified), not part of the model
+        if rows is not None:
+            n_cal = sum((len(x) + k - 1) // k for x in qs)
+            if (rows.X.shape[0] != n_cal + rows.n_hold or rows.y.size != rows.X.shape[0]
+                    or rows.X.shape[1] != self.n_columns() + rows.n_extra + n_hx):
+                raise ValueError(f"{type(self).__name__}.fit: rows of shape {rows.X.shape} are not those of these "
+                                 f"{n_cal} calibration rows")
+        else:
+            rows = fit_rows(self, qs, vs, dt, extra, holds)
+        X, y, pen, n_hold, nE = rows.X, rows.y, rows.penalised, rows.n_hold, rows.n_extra
         ok = np.isfinite(y)   # a sample whose target is not observed gives no row (its charge still drives the operators)
         if not ok.all():
             X, y = X[ok], y[ok]
         coef = ridge_lstsq(X, y, pen, self.ridge, lower=self._bounds(X.shape[1]))
         resid = X @ coef - y
         coef = coef[:len(coef) - n_hx]
-        nE = 0 if E is None else E.shape[1]
         self.coef_ = coef[:len(coef) - nE]
         self.extra_coef_ = coef[len(coef) - nE:]
         self.fit_report_ = {"rms_v": float(np.sqrt(np.mean(resid**2))), "n_samples": int(len(y)), "row_stride": k,
@@ -305,6 +314,33 @@ def stacked_rows(model: LinearParamH, qs, dt: float, stride: int, E: np.ndarray 
     if nt:
         X[r0:] = tail
     return X, np.concatenate([pen, np.zeros(ne + nx, bool)])
+
+
+def fit_rows(model, q, v, dt: float, extra=None, holds=None) -> FitRows:
+    """The stacked least-squares rows of :meth:`LinearParamH.fit` with the same arguments: ``[design | extra |
+    hold-only columns]`` of every ``k``-th sample of every segment (:func:`fit_stride`), then the hold rows
+    (:func:`~selfsense.hysteresis.models.holds.hold_design`), and their targets. ``model``: anything with
+    ``n_columns`` and ``design`` (a :class:`LinearParamH`, or a model linear in its parameters), prepared on ``q``.
+    The blocked CV of the model selection builds its rows with it too, so that the selected model's final fit can
+    take them as they are (``LinearParamH.fit(..., rows=...)``)."""
+    qs, vs = _segments(q, v)
+    k = fit_stride([len(x) for x in qs])
+    y = np.concatenate([w[::k] for w in vs])
+    E = None
+    if extra is not None:
+        if not isinstance(extra, (list, tuple)):   # stacked rows of all segments -> one array per segment
+            stacked = np.asarray(extra, dtype=float).reshape(sum(len(x) for x in qs), -1)
+            extra = np.split(stacked, np.cumsum([len(x) for x in qs])[:-1])
+        E = stacked_extra(extra, qs, k)
+    n_hold = 0
+    Xh, hid = None, np.zeros(0, int)
+    if holds:
+        from .holds import hold_design
+
+        Xh, yh, hid = hold_design(model, holds, dt, len(y), model.n_columns() + (0 if E is None else E.shape[1]))
+        y, n_hold = np.concatenate([y, yh]), len(yh)
+    X, pen = stacked_rows(model, qs, dt, k, E, tail=Xh)
+    return FitRows(X, y, pen, n_hold, 0 if E is None else E.shape[1], hid)
 
 
 def ridge_lstsq(X: np.ndarray, y: np.ndarray, penalised: np.ndarray, ridge: float, lower=None, *,

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import (DegenerateFitError, LinearParamH, fit_stride, make_model, qr_reduce, ridge_lstsq, stacked_extra,
-               stacked_rows)
+from . import (DegenerateFitError, LinearParamH, fit_rows, fit_stride, make_model, qr_reduce, ridge_lstsq,
+               stacked_extra, stacked_rows)
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,12 @@ def cv_workers(n: int):
         yield
     finally:
         _CV_WORKERS.reset(token)
+
+
+#: the serial selection keeps the least-squares rows of its best candidate so far for the final fit (no second build)
+#: if they take at most this many bytes (within the fit-row cap MAX_FIT_ROWS they could take several hundred MB;
+#: 128 MB keeps the jobs inside their memory budgets, benchmarks/MEMORY.md)
+KEEP_ROWS_BYTES = 128 << 20
 
 
 def _cost_rank(kind: str) -> int:
@@ -139,30 +145,29 @@ def _combined_rms(r_cal: np.ndarray, r_hold: np.ndarray, w2: float = 1.0) -> flo
     return float(np.sqrt(ss / n)) if n else float("nan")
 
 
-def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin, holds=None):
+def _cv_linear(model: LinearParamH, qs, ys, dt, extras, folds, thin, holds=None, rows_out: list | None = None):
     """Fold RMS of ``model``; ``extras`` per segment, ``folds`` over the stacked rows of every ``fit_stride``-th
     sample; ``holds`` (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the hold rows of every trial join the
-    fit, each hold held out in one fold and scored there."""
-    stride = fit_stride([len(q) for q in qs])
+    fit, each hold held out in one fold and scored there. ``rows_out``: a list that receives the stacked rows
+    (:class:`~selfsense.hysteresis.models.FitRows`, those of the model's final fit on all rows)."""
     model.prepare(qs, dt)
-    y = np.concatenate([np.asarray(v, float)[::stride] for v in ys])
-    E = stacked_extra(extras, qs, stride)
-    keep = np.zeros(len(y), bool)
-    keep[::thin] = True
-    n_cal = len(y)
+    # the stacked calibration rows ([design | extras]) with the hold rows below them, in one matrix: the rows of
+    # the model's fit on all of them (models.fit_rows)
+    rows = fit_rows(model, qs, ys, dt, extras, holds)
+    if rows_out is not None:
+        rows_out.append(rows)
+    X, y, pen = rows.X, rows.y, rows.penalised
+    n_cal = len(y) - rows.n_hold
+    keep = np.ones(len(y), bool)
+    keep[:n_cal] = False
+    keep[:n_cal:thin] = True
     w2 = 1.0
-    Xh = None
     if holds:
-        from .holds import _stride_and_weight, hold_design
+        from .holds import _stride_and_weight
 
-        Xh, yh, hid = hold_design(model, holds, dt, n_cal, model.n_columns() + (0 if E is None else E.shape[1]))
         w2 = _stride_and_weight(holds, n_cal)[1] ** 2
-        hf = _hold_folds(hid, len(folds))
+        hf = _hold_folds(rows.hold_id, len(folds))
         folds = [np.concatenate([np.asarray(f, bool), h]) for f, h in zip(folds, hf)]
-        y = np.concatenate([y, yh])
-        keep = np.concatenate([keep, np.ones(len(yh), bool)])
-    # the stacked calibration rows ([design | extras]) with the hold rows below them, in one matrix
-    X, pen = stacked_rows(model, qs, dt, stride, E, tail=Xh)
     rms = []
     lower = model._bounds(X.shape[1])
     held_all = np.asarray(folds, bool)
@@ -255,15 +260,17 @@ def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None):
 
 
 def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, folds, n_blocks: int, rotate: bool,
-                 thin: int, holds=None) -> dict:
+                 thin: int, holds=None, rows_out: list | None = None) -> dict:
     """One row of the selection table: the blocked-CV fold RMS of ``model`` (made from ``kind``, ``params``) on the
     segments, by the fit its class needs (linear least squares, the masked joint fit, or the QP on the first
-    free-tip segment); a candidate that cannot be fitted is out of the race and its status says why."""
+    free-tip segment); a candidate that cannot be fitted is out of the race and its status says why.
+    ``rows_out``: a list that receives the stacked least-squares rows of a model linear in its parameters
+    (:func:`_cv_linear`)."""
     lengths = [len(q) for q in qs]
     k = fit_stride(lengths)
     try:
         if isinstance(model, LinearParamH) or getattr(model, "linear_in_parameters", False):
-            rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds)
+            rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds, rows_out=rows_out)
         elif getattr(model, "joint_extra", False):
             rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds)
         elif k == 1:
@@ -334,12 +341,13 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
     holds = holds if holds else None
-    def row(cand):
+    def row(cand, rows_out=None):
         kind, params = cand
         return cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
-                            rotate, thin, holds)
+                            rotate, thin, holds, rows_out=rows_out)
 
     workers = min(_CV_WORKERS.get(), len(candidates))
+    kept = None   # (table row, its least-squares rows): the best candidate so far linear in its parameters
     if workers > 1:
         from selfsense.parallel import fork_map
 
@@ -349,7 +357,18 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         for i, r in zip(order, rows):
             table[i] = r
     else:
-        table = [row(c) for c in candidates]
+        # one after the other, here: the stacked rows of the best candidate so far are kept (at most one matrix
+        # of at most KEEP_ROWS_BYTES), and if it is selected its final fit solves them as they are instead of
+        # building them again (the same rows, so the same model bit for bit; in forked workers they stay there)
+        table = []
+        for c in candidates:
+            got: list = []
+            r = row(c, got)
+            table.append(r)
+            if (got and r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"]) and got[0].X.nbytes <= KEEP_ROWS_BYTES
+                    and (kept is None or r["cv_rms_mean_v"] < kept[0]["cv_rms_mean_v"])):
+                kept = (r, got[0])
+            del got
     _reject_unstable(table)
     ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
     if not ok:
@@ -385,7 +404,8 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         log.warning(w)
     model = make_model(best["kind"], **best["params"])
     if isinstance(model, LinearParamH):
-        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds)
+        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds,
+                  rows=kept[1] if kept is not None and kept[0] is best else None)
         extra_coef = model.extra_coef_
     elif getattr(model, "joint_extra", False):
         model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds)
