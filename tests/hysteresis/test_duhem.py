@@ -171,3 +171,85 @@ def test_default_candidates_include_a_creep_free_duhem_for_long_creep_free_recor
     res = select_h_model(qs, ys, dt, candidates=cands)
     assert res.model.kind == "duhem" and not res.model.creep
     assert min(r["cv_rms_mean_v"] for r in res.table) < 0.1
+
+
+def test_map_output_has_the_same_bits_with_and_without_its_sensitivities():
+    """The fit takes each residual from the map's run that also computes the sensitivities (the Jacobian is kept for
+    the trust-region loop's next Jacobian call): the map's output must not depend on whether they are computed."""
+    from selfsense.hysteresis.models._duhem import duhem_run, duhem_state, n_terms
+
+    rng = np.random.default_rng(0)
+    u = _drive(seed=2) / QREF
+    for deg in (2, 3):
+        c = rng.normal(size=2 * n_terms(deg)) * 3.0
+        for stride in (1, 3):
+            # a narrow output range: the clipping (where the sensitivities restart) is visited too
+            args = (u, c, deg, -1.0, 2.0, 2e-3, -1.5, 1.5, stride)
+            v_plain, _ = duhem_run(*args, False, duhem_state())
+            v_sens, J = duhem_run(*args, True, duhem_state())
+            assert v_plain.tobytes() == v_sens.tobytes()
+            assert J.shape == (v_plain.size, c.size) and np.any(J != 0)
+
+
+def test_fit_is_the_same_when_the_kept_jacobian_cannot_be_used(monkeypatch):
+    """A Jacobian asked for at another point than the last residual's is computed afresh: the same fit, bit for bit,
+    as with the kept one (here the trust-region loop is made to evaluate the residual elsewhere before each
+    Jacobian call)."""
+    import scipy.optimize as so
+
+    q = _drive(seed=3)
+    v = _saturating_duhem(q)
+    kept = DuhemH(degree=2).fit(q, v, DT)
+    least_squares = so.least_squares
+
+    def elsewhere_first(fun, x0, jac=None, **kw):
+        def jac_after_another_residual(x, *a):
+            fun(np.zeros_like(x))
+            return jac(x, *a)
+        return least_squares(fun, x0, jac=jac_after_another_residual, **kw)
+
+    monkeypatch.setattr(so, "least_squares", elsewhere_first)
+    fresh = DuhemH(degree=2).fit(q, v, DT)
+    assert json.dumps(fresh.to_dict()) == json.dumps(kept.to_dict())
+
+
+def test_equation_error_start_equals_the_increments_one_at_a_time():
+    """The equation-error start builds the rows of all increments at once, with the operations of
+    ``duhem_terms`` in its order: the same start, bit for bit, as one increment at a time (the loop it replaced)."""
+    from selfsense.hysteresis.models import ridge_lstsq
+    from selfsense.hysteresis.models._duhem import duhem_terms, n_terms
+    from selfsense.hysteresis.models.duhem import _directions
+
+    m = DuhemH(degree=3)
+    us = [_drive(seed=s) / QREF for s in (4, 5)]
+    ve = [np.cumsum(np.abs(np.diff(u, prepend=u[0]))) * 0.5 - u for u in us]
+    masks = [np.arange(u.size) % 7 != 3 for u in us]
+    lo, hi = min(float(v.min()) for v in ve), max(float(v.max()) for v in ve)
+    m.v_lo_, m.v_span_ = lo - 0.05 * (hi - lo), 1.1 * (hi - lo)
+
+    nb = n_terms(m.degree)
+    rowsA, rowsb = [], []
+    phi, dphi = np.empty(nb), np.empty(nb)
+    for u, v, msk in zip(us, ve, masks):
+        s = _directions(u, m.eps)
+        k = max(1, int(u.size // 3000))
+        i0 = np.arange(0, u.size - k, k)
+        i1 = i0 + k
+        cs = np.concatenate([[0], np.cumsum(s != 1)])
+        ok = msk[i0] & msk[i1] & ((cs[i1] - cs[i0] == 0) | (cs[i1] - cs[i0] == k))
+        for a, b in zip(i0[ok], i1[ok]):
+            du = u[b] - u[a]
+            if du == 0:
+                continue
+            x = min(max(u[a] + u[b] - 1.0, -1.5), 1.5)
+            w = min(max((v[a] + v[b] - 2 * m.v_lo_) / m.v_span_ - 1.0, -1.5), 1.5)
+            duhem_terms(x, w, m.degree, phi, dphi)
+            row = np.zeros(2 * nb)
+            off = 0 if s[a] > 0 else nb
+            row[off:off + nb] = phi * du
+            rowsA.append(row)
+            rowsb.append(v[b] - v[a])
+    A = np.asarray(rowsA)
+    assert len(rowsA) > 100 and np.any(A[:, :nb] != 0) and np.any(A[:, nb:] != 0)
+    ref = ridge_lstsq(A, np.asarray(rowsb), np.ones(A.shape[1], bool), 1e-8)
+    assert m._equation_error(us, ve, masks).tobytes() == ref.tobytes()

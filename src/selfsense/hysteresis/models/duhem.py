@@ -39,7 +39,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from . import DEFAULT_CREEP_TAU_S, DegenerateFitError, _segments, fit_stride, normalise_input, ridge_lstsq
-from ._duhem import duhem_run, duhem_state, duhem_terms, n_terms
+from ._duhem import duhem_run, duhem_state, n_terms
 from ._grid import play_features, relaxation_bank, relaxation_output
 
 __all__ = ["DuhemH"]
@@ -199,12 +199,29 @@ class DuhemH:
             J = J - Qf @ (Qf.T @ J)
             return np.concatenate([e, lam * c]), np.vstack([J, lam * np.eye(nb)])
 
+        # the trust-region loop asks for the Jacobian at the point whose residual it has just evaluated (after each
+        # accepted step): the residual is computed together with the sensitivities (the map's run computes V the
+        # same way with or without them, so the residual has the same bits) and the Jacobian is kept for that call,
+        # instead of running the map over every sample once more
+        kept: list = []
+
+        def fun(c):
+            f, J = resid_jac(c, True)
+            kept[:] = [np.array(c, dtype=float), J]
+            return f
+
+        def jac(c):
+            if kept and np.array_equal(kept[0], c):
+                J = kept[1]
+                kept.clear()
+                return J
+            return resid_jac(c, True)[1]
+
         # two starts (the equation-error estimate and g = 0, a flat state): the output-error objective has local
         # minima; the lower one is kept
         best = None
         for start in (c0, np.zeros(nb)):
-            sol = least_squares(lambda c: resid_jac(c, False)[0], start, jac=lambda c: resid_jac(c, True)[1],
-                                method="trf", x_scale="jac", max_nfev=self.max_nfev)
+            sol = least_squares(fun, start, jac=jac, method="trf", x_scale="jac", max_nfev=self.max_nfev)
             if best is None or sol.cost < best.cost:
                 best = sol
         sol = best
@@ -262,8 +279,6 @@ class DuhemH:
         ``m`` samples that do not straddle a reversal)."""
         nb = n_terms(self.degree)
         rowsA, rowsb = [], []
-        phi = np.empty(nb)
-        dphi = np.empty(nb)
         for u, ve, msk in zip(us, v_eq, masks):
             s = _directions(u, self.eps)
             m = max(1, int(u.size // 3000))
@@ -274,22 +289,32 @@ class DuhemH:
             cs = np.concatenate([[0], np.cumsum(s != 1)])
             same = (cs[i1] - cs[i0] == 0) | (cs[i1] - cs[i0] == m)
             ok &= same
-            for a, b in zip(i0[ok], i1[ok]):
-                du = u[b] - u[a]
-                if du == 0:
-                    continue
-                x = min(max(u[a] + u[b] - 1.0, -1.5), 1.5)
-                w = min(max((ve[a] + ve[b] - 2 * self.v_lo_) / self.v_span_ - 1.0, -1.5), 1.5)
-                duhem_terms(x, w, self.degree, phi, dphi)
-                row = np.zeros(2 * nb)
-                off = 0 if s[a] > 0 else nb
-                row[off:off + nb] = phi * du
-                rowsA.append(row)
-                rowsb.append(ve[b] - ve[a])
-        if len(rowsb) < 4 * nb:
+            a, b = i0[ok], i1[ok]
+            du = u[b] - u[a]
+            a, b, du = a[du != 0], b[du != 0], du[du != 0]
+            # all increments at once, each with the operations of duhem_terms in its order (the same bits as one
+            # increment at a time): monomials x^i w^j by repeated products
+            x = np.minimum(np.maximum(u[a] + u[b] - 1.0, -1.5), 1.5)
+            w = np.minimum(np.maximum((ve[a] + ve[b] - 2 * self.v_lo_) / self.v_span_ - 1.0, -1.5), 1.5)
+            rows = np.zeros((a.size, 2 * nb))
+            asc = s[a] > 0
+            col = 0
+            xi = np.ones(a.size)
+            for i in range(self.degree + 1):
+                wj = np.ones(a.size)
+                for _ in range(self.degree + 1 - i):
+                    t = (xi * wj) * du
+                    rows[asc, col] = t[asc]
+                    rows[~asc, nb + col] = t[~asc]
+                    wj = wj * w
+                    col += 1
+                xi = xi * x
+            rowsA.append(rows)
+            rowsb.append(ve[b] - ve[a])
+        if sum(len(r) for r in rowsb) < 4 * nb:
             return np.zeros(2 * nb)
-        A = np.asarray(rowsA)
-        b = np.asarray(rowsb)
+        A = np.vstack(rowsA)
+        b = np.concatenate(rowsb)
         return ridge_lstsq(A, b, np.ones(A.shape[1], bool), 1e-8)
 
     # -- evaluation ---------------------------------------------------------------------------------------------------
