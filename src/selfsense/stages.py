@@ -242,9 +242,10 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     force-reference calibration trial (the default); Kuhnen's modified PI with creep (thesis eqs. 36-43) on the
     free-tip trial only, as the thesis does; the RI model of the third seed + creep bank on the free-tip trials.
 
-    ``model_json`` / ``estimate_paths``: the pipeline's fitted model and its estimates. A combination whose
-    configuration is the pipeline model's is not fitted nor estimated again: its row is scored on the pipeline's
-    estimates (the same numbers, without refitting the model selection). The selected model's other calibration mode
+    ``model_json``: the pipeline's fitted model. A combination whose configuration is the pipeline model's is not
+    fitted again: its row is scored on that model's estimates (the same numbers, without refitting the model
+    selection), read from ``estimate_paths`` (the pipeline's estimates) where given, else estimated here -- the
+    pipeline's rule does not wait for the estimate jobs, it runs beside them. The selected model's other calibration mode
     refits the H form the pipeline's blocked CV selected (with the straight line it must beat) in that mode's gauge,
     instead of repeating the whole selection: the gauges differ by a term linear in Q, which every linear-in-parameter
     candidate absorbs in its unpenalised linear column."""
@@ -270,8 +271,8 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
         combos = tuple((h, ident, mode) for h, ident in (("auto", "joint"), ("modified_pi", "thesis"), ("ri", "thesis"))
                        for mode in ("thesis", "onsite"))
         ests = {}
-        reused = None   # the combination the pipeline already fitted and estimated
-        pipeline = load_estimator(dataset_dir, model_json) if model_json is not None and estimate_paths else None
+        reused = None   # the combination the pipeline already fitted
+        pipeline = load_estimator(dataset_dir, model_json) if model_json is not None else None
         for h_model, ident, mode in combos:
             cfg = dict(config)
             extra = {} if ident == "joint" else {"drift": "off"}
@@ -298,7 +299,7 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                     continue
             s = sigs[t] if t in sigs else pd.read_parquet(signal_paths[t], columns=_ESTIMATE_INPUTS)
             for c in combos:
-                if c == reused and t in estimate_paths:
+                if c == reused and t in (estimate_paths or {}):
                     e = pd.read_parquet(estimate_paths[t], columns=["dx_hat", "f_hat"])
                 else:
                     e = ests[c].estimate(s)
