@@ -140,6 +140,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "leakage_ns": float(est.leakage_s_) * 1e9,
         "quantiser": bool((est.quantiser_ or {}).get("applied", False)),
         "quantiser_i_q_na": float((est.quantiser_ or {}).get("i_q_a", 0.0)) * 1e9,
+        "stress": bool((est.stress_ or {}).get("applied", False)),
         "regression": str(est.fit_report_.get("regression_form", "")),
         "warnings": list(est.fit_report_.get("warnings", [])),
     })

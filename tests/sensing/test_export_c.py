@@ -81,8 +81,8 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
-        # every member the C code carries: quantiser, absorption, leakage, rest offset, sliding offset (dx and f),
-        # limiting
+        # every member the C code carries: quantiser, absorption, leakage, stress, rest offset, sliding offset (dx
+        # and f), limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
         pr = _rig_params(rig)
         est.absorption_ = {"applied": True, "c_f": 0.02 * pr["n_A"] * pr["C_p"], "tau_s": 1.5}
@@ -94,6 +94,11 @@ def models(tmp_path_factory):
         k = len(dev) // 2
         i_max = float(np.max(np.abs(np.diff(cal["q"].to_numpy()) / np.diff(cal["t"].to_numpy()))))
         est.quantiser_ = {"applied": True, "half_step_v": 0.5 * (dev[k] + dev[k + 1]), "i_q_a": 0.01 * i_max}
+        # the load link's stress member: H scaled by 1 + s_H f (20 % at the largest calibrated force) and a Q f term
+        fmax = max(est.ranges_["f"][1], 1e-9)
+        qmax = float(np.max(np.abs(sigs["cal_free"]["q"].to_numpy())))
+        est.stress_ = {"applied": True, "s_h_per_n": 0.2 / fmax, "s_q_v_per_c_n": 1.0 / (qmax * fmax),
+                       "a_h_v": 0.5, "a_q_c": 0.3 * qmax}
         est.config.dc_offset = est.config.dc_offset_force = True
         out[name] = est
     h = out["modified_pi (thesis)"].hysteresis_   # a model file written before ModifiedPIH holds a GaugedH

@@ -17,7 +17,7 @@ A correction acts where the stage says the effect acts:
 
 Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset
 drift and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
-:mod:`selfsense.chain.amplifier`) are not corrected with the stage's coefficients: the estimator is recalibrated
+:mod:`selfsense.chain.amplifier`; the load link's stress-dependent hysteresis, :mod:`selfsense.chain.load`) are not corrected with the stage's coefficients: the estimator is recalibrated
 with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
 member, identified jointly with H(q) and the sensing coefficients. For a member the fitted estimator already carries
 (adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it
@@ -44,7 +44,8 @@ __all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "coun
 
 #: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
 CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier",
-                 "slow.absorption": "absorption"}
+                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress",
+                 "load.stress_hysteresis@blocked": "stress"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -164,7 +165,8 @@ def adopted_members(fitted) -> dict:
             "hold_rows": bool(hold_rows.get("applied", False)),
             "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False)),
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
-            "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False))}
+            "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
+            "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):
@@ -355,7 +357,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         return res
     base = table(frozenset())
     res["base"] = _summary(base)
-    res["base_members_off"] = sorted(CHAIN_MEMBERS[n] for n in names if is_carried(n))
+    res["base_members_off"] = sorted({CHAIN_MEMBERS[n] for n in names if is_carried(n)})
     rng = np.random.default_rng(seed)
     trials_v = list(fitted_tab)
 
@@ -430,6 +432,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
                                         "current plateau of every trial" if m == "amplifier" else
                                         "laser of the free-tip calibration trials" if m == "absorption" else
                                         "undithered shunt channel, calibration rows" if m == "quantiser" else
+                                        "force-reference calibration rows" if m == "stress" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             w = without({m: "off"})

@@ -206,6 +206,14 @@ def _model_section(results_dir: Path) -> list[str]:
     if qz.get("note"):
         kind += (f"; offset current of an undithered shunt channel (charge link, docs/method.md 1b'): "
                  f"{'taken out of Q' if qz.get('applied') else 'not applied'}, {html.escape(str(qz['note']))}")
+    st = d.get("stress") or {}
+    if st.get("note"):
+        kind += (f"; stress-dependent hysteresis (load link, V_H = H(q) + (s_H H(q) + s_Q Q) f, force-reference "
+                 f"calibration rows, docs/method.md 6f): "
+                 + (f"carried, s_H = {st.get('s_h_per_n', 0.0):.4g} per N, s_Q = {st.get('s_q_v_per_c_n', 0.0):.4g} "
+                    f"V/(C N)" if st.get("applied")
+                    else "not applied")
+                 + f", {html.escape(str(st['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"

@@ -55,8 +55,8 @@ H_MODES = ("thesis", "onsite")
 H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
 #: the chain members ``SelfSensingEstimator(members=...)`` can force: charge link (leakage, offset drift, absorption,
-#: quantiser), H link (hold rows), voltage link (amplifier)
-CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser")
+#: quantiser), H link (hold rows), voltage link (amplifier), load link (stress: :mod:`selfsense.chain.load`)
+CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser", "stress")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
 #: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
 N_DRIFT_ALTERNATIONS = 1
@@ -98,6 +98,10 @@ class SensingConfig:
     #: the offset-drift member: "auto" where the calibration rows support it, "on" on every trial's rest segments
     #: (docs/cross_device.md, "The offset-drift member forced on"), "off" never
     offset_drift: str = "auto"
+    #: the load link's stress member (docs/method.md 6f): "auto" where the force-reference calibration rows support
+    #: it, "off" never. Off by default: on the bundled dataset the member finds the simulator's stress (s_H 0.49 per
+    #: N against 0.5) and makes the contact trials' displacement worse (docs/method.md 6f)
+    stress: str = "off"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -122,6 +126,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.absorption: expected 'auto' or 'off', found {self.absorption!r}")
         if self.quantiser not in ("auto", "off"):
             raise ValueError(f"SensingConfig.quantiser: expected 'auto' or 'off', found {self.quantiser!r}")
+        if self.stress not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.stress: expected 'auto' or 'off', found {self.stress!r}")
         if self.offset_drift not in ("auto", "on", "off"):
             raise ValueError(f"SensingConfig.offset_drift: expected 'auto', 'on' or 'off', found {self.offset_drift!r}")
         if self.offset_drift == "on" and self.drift == "off":
@@ -146,6 +152,8 @@ class SensingConfig:
             raise ValueError(f"sensing config: unknown keys {unknown}; expected some of {sorted(known)}")
         if isinstance(cfg.get("offset_drift"), bool):   # YAML 1.1 reads an unquoted on / off as true / false
             cfg["offset_drift"] = "on" if cfg["offset_drift"] else "off"
+        if cfg.get("stress") is False:   # an unquoted off
+            cfg["stress"] = "off"
         return cls(**cfg)
 
 
@@ -580,6 +588,8 @@ class SelfSensingEstimator:
     absorption_: dict = field(default_factory=dict, init=False)
     #: the charge link's quantiser member: the offset current an undithered shunt channel's short leaves, whether applied
     quantiser_: dict = field(default_factory=dict, init=False)
+    #: the load link's stress member (:mod:`selfsense.chain.load`): V_H = H(q) + (s_H H(q) + s_Q Q) f, whether applied
+    stress_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -622,6 +632,7 @@ class SelfSensingEstimator:
         if missing:
             raise CalibrationError(f"calibration trials {missing} were not provided to fit()")
         self.calibration_trials_ = list(cal.index)
+        self.stress_ = {"applied": False, "note": "stress member not identified (H(q) identification is not joint)"}
         # the voltage link (V, Q, u_cmd and V_s of every trial, never a reference): where the amplifier sits at its
         # current limit the actuator voltage is rebuilt before anything reads V
         trials = self._voltage_link(trials, meta)
@@ -709,10 +720,18 @@ class SelfSensingEstimator:
         return self
 
     # ------------------------------------------------------------------ H(q) identification
-    def _h_segments(self, cal_trials, cal, slope, g_leak, drift_cols: bool | None = None):
+    def _h_segments(self, cal_trials, cal, slope, g_leak, drift_cols: bool | None = None,
+                    stress_col: bool | None = None):
         """Calibration rows of the joint H(q) fit: every free-tip trial (V_p = slope Q in the eq. 55 gauge, f = 0)
-        and every trial with a force reference (V_p shifted by f / B22: a column -f_ref), relay excluded."""
-        qs, ys, ex, free, names, dts = [], [], [], [], [], []
+        and every trial with a force reference (V_p shifted by f / B22: a column -f_ref), relay excluded.
+        ``stress_col`` (default: the adopted stress member): the load link's stress columns ``H_0(q) f, Q f`` (0 on a
+        free tip, :func:`selfsense.chain.load.stress_columns`; ``H_0`` the reference model :meth:`_stress_member`
+        fitted on the free-tip rows) right after the force column."""
+        from selfsense.chain.load import stress_columns
+
+        if stress_col is None:
+            stress_col = bool((self.stress_ or {}).get("applied"))
+        qs, ys, ex, free, names, dts, raw = [], [], [], [], [], [], []
         for tid, row in cal.iterrows():
             if not (row["tip"] == "free" or row["reference"] == "force"):
                 continue
@@ -726,8 +745,22 @@ class SelfSensingEstimator:
                     f = np.where(np.isfinite(f), f, 0.0)
             else:
                 f = np.zeros(len(Q))
+            if stress_col:
+                h0 = (_eval_h(self._stress_h0, Q, _trial_dt(df)) if row["reference"] == "force"
+                      else np.zeros(len(Q)))
+                raw.append((f, stress_columns(h0, Q, f)))
             qs.append(Q); ys.append(y); ex.append(-f[:, None]); free.append(row["tip"] == "free"); names.append(tid)
             dts.append(_trial_dt(df))
+        if stress_col:
+            # the part of the stress columns along f itself is the two-port's own (linear in the load: the force
+            # column's), so the columns are taken orthogonal to f over the loaded rows: w f = (s_H (H - a_H) +
+            # s_Q (Q - a_Q)) f, with a = <column, f> / <f, f> (chain.load)
+            F = np.concatenate([f for f, _ in raw])
+            SC = np.vstack([c for _, c in raw])
+            ff = float(F @ F)
+            alpha = (SC.T @ F) / ff if ff > 0 else np.zeros(SC.shape[1])
+            self._stress_alpha = alpha
+            ex = [np.column_stack([e, c - f[:, None] * alpha]) for e, (f, c) in zip(ex, raw)]
         if self.offset_drift_ if drift_cols is None else drift_cols:
             # per-trial charge drift b t^2 (a linear in-amp offset drift) as free columns of the joint fit, so that it
             # does not bend H (a t term would be collinear with the leakage column g int V dt at a steady mean V);
@@ -897,7 +930,8 @@ class SelfSensingEstimator:
         """The chain members' modes (charge link: leakage, offset drift; H link: hold rows; voltage link: amplifier):
         the ``members`` forced values, else the configuration's (``SensingConfig.offset_drift``), "auto" where
         neither forces one."""
-        return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto")})
+        return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto"),
+                                           "stress": getattr(self.config, "stress", "auto")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -913,6 +947,9 @@ class SelfSensingEstimator:
         if cfg.drift == "auto" or any(m != "auto" for k, m in self._member_modes().items() if k != "amplifier"):
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
             self.offset_drift_ = bool(drift_info["offset_drift_applied"])
+        # the load link's stress member, decided on the reference model's blocked CV (_stress_member): where adopted,
+        # its columns join the rows of the H(q) selection (identified jointly with H)
+        self.stress_ = self._stress_member(cal_trials, cal, slope)
         qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_)
         if not free_mask.any():
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
@@ -977,6 +1014,13 @@ class SelfSensingEstimator:
         if self.offset_drift_:
             model, qs, ys, ex, sel.extra_coef, drift_info["joint_refit"] = self._refit_on_drift_free_charge(
                 model, sel, cal_trials, names, slope, dt, qs, ys, ex, holds)
+        if self.stress_.get("applied") and len(sel.extra_coef) > 2:
+            # s_H, s_Q: the stress columns' coefficients in the final joint fit (the columns right after -f_ref)
+            self.stress_.update({"s_h_per_n": float(sel.extra_coef[1]), "s_q_v_per_c_n": float(sel.extra_coef[2]),
+                                 "a_h_v": float(self._stress_alpha[0]), "a_q_c": float(self._stress_alpha[1])})
+        elif self.stress_.get("applied"):
+            self.stress_.update({"applied": False, "note": self.stress_["note"] + "; the selected H(q) form took no "
+                                 "joint columns: not applied"})
         rms = []
         for q, y, e in zip(qs, ys, ex):
             pred = model.predict(q, dt)
@@ -991,12 +1035,49 @@ class SelfSensingEstimator:
                "max_pct": float(np.max(np.abs(model.predict(qs[int(np.flatnonzero(free_mask)[0])], dt)
                                               - y0 + (ex[int(np.flatnonzero(free_mask)[0])] @ sel.extra_coef
                                                       if len(sel.extra_coef) else 0.0))) / rng * 100),
-               "drift": drift_info, "extra_coef": [float(c) for c in sel.extra_coef],
+               "drift": drift_info, "stress": dict(self.stress_), "extra_coef": [float(c) for c in sel.extra_coef],
                "hold_rows": self._hold_rows_report(holds, model),
                "n_samples_fit": int(sum(len(q) for q in qs))}
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
+
+    def _stress_member(self, cal_trials, cal, slope) -> dict:
+        """The load link's stress member (:mod:`selfsense.chain.load`): ``V_H = H(q) + (s_H H(q) + s_Q Q) f``, decided
+        on the calibration rows (with the adopted leakage and offset-drift columns): the charge-link reference model
+        (:func:`_reference_h`) fitted on the free-tip rows gives ``H_0``; the member is adopted when the columns
+        ``H_0(q) f_ref, Q f_ref`` lower the reference model's blocked-CV error by more than
+        :data:`~selfsense.chain.load.STRESS_MIN_GAIN` (``members`` forces it on or off). Needs a calibration trial with
+        a force reference that carries a load."""
+        from selfsense.chain.load import STRESS_MIN_GAIN
+
+        mode = self._member_modes()["stress"]
+        if mode == "off":
+            return {"applied": False, "mode": mode, "source": "forced", "note": "stress member off (forced)"}
+        loaded = [t for t, r in cal.iterrows() if r["reference"] == "force"
+                  and np.nanmax(np.abs(cal_trials[t]["f_ref"].to_numpy(dtype=float)), initial=0.0) > 0.0]
+        if not loaded:
+            return {"applied": False, "mode": mode, "source": "none",
+                    "note": "no calibration trial with a loaded force reference: the stress member is not identifiable"}
+        qs, ys, ex, free, _, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_,
+                                                   drift_cols=self.offset_drift_, stress_col=False)
+        # H_0 from the free-tip rows alone (no tip load: no stress), evaluated on the loaded trials' charge
+        fi = np.flatnonzero(free)
+        keep = np.flatnonzero(np.any(np.vstack([ex[i] for i in fi]) != 0.0, axis=0))  # their drift columns
+        self._stress_h0 = _reference_h().fit([qs[i] for i in fi], [ys[i] for i in fi], dt,
+                                             extra=[ex[i][:, keep] for i in fi] if len(keep) else None)
+        cvs = [_reference_cv(qs, ys, ex, dt)]
+        qs, ys, ex, _, _, dt = self._h_segments(cal_trials, cal, slope, self.leakage_s_,
+                                                drift_cols=self.offset_drift_, stress_col=True)
+        cvs.append(_reference_cv(qs, ys, ex, dt))
+        gain = bool(cvs[1] < (1.0 - STRESS_MIN_GAIN) * cvs[0])
+        applied = mode == "on" or gain
+        note = (f"stress member {'forced on' if mode == 'on' else 'adopted' if gain else 'not supported'}: the column "
+                f"H_0(q) f_ref, Q f_ref of {loaded} give a blocked-CV error of {cvs[1]:.4g} V against {cvs[0]:.4g} V without"
+                + ("" if applied else f" (a gain of at least {STRESS_MIN_GAIN:.0%} is needed)"))
+        return {"applied": applied, "mode": mode, "source": "forced" if mode == "on" else
+                ("calibration" if gain else "none"), "cv_rms_v_with": cvs[1], "cv_rms_v_without": cvs[0],
+                "trials": loaded, "note": note}
 
     def _leakage_check_with_selected(self, sel, cal_trials, cal, slope, dt) -> dict:
         """Blocked-CV error of the selected H(q) form on the calibration rows with the adopted leakage and without it
@@ -1415,7 +1496,10 @@ class SelfSensingEstimator:
         for tid, row in cal.iterrows():
             df = cal_trials[tid]
             m = (df["relay"].to_numpy() < 0.5) & self._voltage_observed(df)
-            feats = self._regressors(df)[m]
+            # the calibration trial's load (stress member): its force reference, none on a free tip
+            f_load = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force" else
+                      np.zeros(len(df)))
+            feats = self._regressors(df, f_load)[m]
             if row["reference"] == "displacement":
                 ok = np.isfinite(df["dx_ref"].to_numpy()[m])
                 Xd.append(feats[ok]); yd.append(df["dx_ref"].to_numpy()[m][ok])
@@ -1571,10 +1655,33 @@ class SelfSensingEstimator:
         self.ranges_ = {"dx": [min(dx_min, 0.0), max(dx_max, 0.0)], "f": [0.0, max(f_max, 0.0)]}
 
     # ------------------------------------------------------------------ helpers
-    def _regressors(self, df: pd.DataFrame) -> np.ndarray:
+    def _regressors(self, df: pd.DataFrame, f: np.ndarray | None = None) -> np.ndarray:
+        """``[Q, V_p]`` of a trial (thesis eq. 27). With the stress member (:mod:`selfsense.chain.load`) ``V_p`` also
+        loses ``w f`` (``w = s_H H(q) + s_Q Q``): ``f`` given (a calibration trial's known load: its force reference, 0 on a free tip), or
+        else solved with the force row in closed form (:func:`~selfsense.chain.load.stress_voltage`)."""
         Q = self._charge(df)
-        V_p = piezo_voltage(df["V"].to_numpy(dtype=float), self._h(Q, df))   # thesis eq. (27)
+        H = self._h(Q, df)
+        V_p = piezo_voltage(df["V"].to_numpy(dtype=float), H)   # thesis eq. (27)
+        s_h, s_q = self.stress_weights()
+        if s_h or s_q:
+            from selfsense.chain.load import stress_voltage, stress_weight
+
+            w = stress_weight(H, Q, s_h, s_q, *self.stress_offsets())
+            V_p = V_p - w * f if f is not None else stress_voltage(Q, V_p, w, self.coef_["B21"], self.coef_["B22"])
         return np.column_stack([Q, V_p])
+
+    def stress_offsets(self) -> tuple[float, float]:
+        """The stress member's ``(a_H [V], a_Q [C])``: the stress columns' parts along ``f`` (chain.load)."""
+        st = self.stress_ or {}
+        return float(st.get("a_h_v", 0.0)), float(st.get("a_q_c", 0.0))
+
+    def stress_weights(self) -> tuple[float, float]:
+        """The stress member's ``(s_H [1/N], s_Q [V/(C N)])`` (``V_H = H(q) + (s_H H(q) + s_Q Q) f``,
+        :mod:`selfsense.chain.load`), zeros where the member is not carried."""
+        st = self.stress_ or {}
+        if not st.get("applied"):
+            return 0.0, 0.0
+        return float(st.get("s_h_per_n", 0.0)), float(st.get("s_q_v_per_c_n", 0.0))
 
     def _predict_raw(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = self.coef_
@@ -1636,6 +1743,7 @@ class SelfSensingEstimator:
             "amplifier": dict(self.amplifier_),
             "absorption": dict(self.absorption_),
             "quantiser": dict(self.quantiser_),
+            "stress": dict(self.stress_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -1661,5 +1769,6 @@ class SelfSensingEstimator:
         est.amplifier_ = dict(d.get("amplifier") or {})
         est.absorption_ = dict(d.get("absorption") or {})
         est.quantiser_ = dict(d.get("quantiser") or {})
+        est.stress_ = dict(d.get("stress") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

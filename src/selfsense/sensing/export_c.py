@@ -35,6 +35,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from selfsense.chain.load import STRESS_MIN_DEN
+
 __all__ = ["export_c", "ExportError", "c_sources"]
 
 
@@ -187,6 +189,11 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     st = h_step(s, q, &VH);
     if (st != SS_OK) return st;
     Vp = V - VH;
+    if (KS_H != 0.0 || KS_Q != 0.0) {  /* stress member: V_p - w f, f in closed form */
+        double w = KS_H * (VH - KS_AH) + KS_Q * (q - KS_AQ), a = B21 * q + B22 * Vp, den = 1.0 + B22 * w;
+        if (den < STRESS_MIN_DEN) den = STRESS_MIN_DEN;
+        Vp = Vp - w * (a / den);
+    }
     if (shorted) { dxr = 0.0; fr = 0.0; }
     else { dxr = A1 * q + A2 * Vp + DX0; fr = B21 * q + B22 * Vp + 0.0; }
     d = dxr; ff = fr;
@@ -491,6 +498,11 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,
         "Q_HALF": float(qz["half_step_v"]) if qz.get("applied") else 0.0,
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
+        "KS_H": est.stress_weights()[0] if hasattr(est, "stress_weights") else 0.0,
+        "KS_Q": est.stress_weights()[1] if hasattr(est, "stress_weights") else 0.0,
+        "KS_AH": est.stress_offsets()[0] if hasattr(est, "stress_offsets") else 0.0,
+        "KS_AQ": est.stress_offsets()[1] if hasattr(est, "stress_offsets") else 0.0,
+        "STRESS_MIN_DEN": STRESS_MIN_DEN,
         "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],
         "F_HI": est.ranges_["f"][1],
