@@ -70,6 +70,7 @@ DATES = {
     "tip_preload": "2026-11-27",
     "amplifier_blind": "2026-11-26",
     "absorption_blind": "2026-11-26",
+    "stress_blind": "2026-11-28",
     "absorption_null": "2026-11-26",
     "absorption_member": "2026-11-26",
     "external": "2026-11-24",
@@ -158,6 +159,8 @@ COMMANDS = {
                      "--out benchmarks/gap_tip/amplifier_member.md",
     "amplifier_blind": "python benchmarks/member_ab.py --member amplifier --effect rate.amplifier --seed 20261126 "
                        "--n 8 --jobs 2 --out benchmarks/gap_tip/amplifier_blind.md",
+    "stress_blind": "python benchmarks/member_ab.py --member stress --effect load.stress_hysteresis --seed 20261128 "
+                    "--n 8 --jobs 2 --out benchmarks/gap_tip/stress_blind.md",
     "absorption_blind": "python benchmarks/member_ab.py --member absorption --effect slow.absorption --seed 31415 "
                         "--n 8 --jobs 2 --out benchmarks/gap_tip/absorption_blind.md",
     "absorption_member": "python benchmarks/tip_cases.py --seed 90210 --cases 4,14,21,45,49,50,73,83,91,97,103,105 "
@@ -672,6 +675,21 @@ def gap_figures() -> list[Fig]:
                            f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                            f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", absrc,
                            COMMANDS["absorption_blind"], DATES["absorption_blind"]))
+    ssrc = "benchmarks/gap_tip/stress_blind.jsonl.gz"
+    if (ROOT / ssrc).exists():
+        sb = [json.loads(x) for x in gzip.open(ROOT / ssrc, "rt")]
+        ad = [r for r in sb if r["adopted"]]
+        better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
+        out.append(Fig(f"stress member of the load link (off by default) at first contact: the first {len(sb)} "
+                       "load.stress_hysteresis tip cases of a seed not used in its development, the member decided by "
+                       "the data; adopted; where adopted, Table 3 lower than with the member off; median Table 3 "
+                       "member off -> auto (effect-free twins); adopted on the effect-free twins",
+                       f"{len(ad)} of {len(sb)}; {better} of {len(ad)}; "
+                       + (f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
+                          f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
+                          f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
+                       + f"; {sum(bool(r['adopted_twin']) for r in sb)} of {len(sb)}", "", "measured", ssrc,
+                       COMMANDS["stress_blind"], DATES["stress_blind"]))
     nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
     if (ROOT / nsrc_).exists():
         nl = [json.loads(x) for x in gzip.open(ROOT / nsrc_, "rt")]
