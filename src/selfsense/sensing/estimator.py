@@ -1053,7 +1053,10 @@ class SelfSensingEstimator:
 
         mode = self._member_modes()["stress"]
         if mode == "off":
-            return {"applied": False, "mode": mode, "source": "forced", "note": "stress member off (forced)"}
+            forced = dict(self.members or {}).get("stress") == "off"
+            return {"applied": False, "mode": mode, "source": "forced" if forced else "config",
+                    "note": "stress member off (forced)" if forced else "stress member off (config stress: off, the "
+                    "default: docs/method.md 6f)"}
         loaded = [t for t, r in cal.iterrows() if r["reference"] == "force"
                   and np.nanmax(np.abs(cal_trials[t]["f_ref"].to_numpy(dtype=float)), initial=0.0) > 0.0]
         if not loaded:
