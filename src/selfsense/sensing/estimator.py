@@ -99,7 +99,7 @@ class SensingConfig:
     #: (docs/cross_device.md, "The offset-drift member forced on"), "off" never
     offset_drift: str = "auto"
     #: the load link's stress member (docs/method.md 6f): "auto" where the force-reference calibration rows support
-    #: it, "off" never. Off by default: on the bundled dataset the member finds the simulator's stress (s_H 0.49 per
+    #: it, "off" never. Off by default: on the bundled dataset the member finds the simulator's stress (s_H 0.45 per
     #: N against 0.5) and makes the contact trials' displacement worse (docs/method.md 6f)
     stress: str = "off"
 
@@ -588,7 +588,7 @@ class SelfSensingEstimator:
     absorption_: dict = field(default_factory=dict, init=False)
     #: the charge link's quantiser member: the offset current an undithered shunt channel's short leaves, whether applied
     quantiser_: dict = field(default_factory=dict, init=False)
-    #: the load link's stress member (:mod:`selfsense.chain.load`): V_H = H(q) + (s_H H(q) + s_Q Q) f, whether applied
+    #: the load link's stress member (:mod:`selfsense.chain.load`): V_H = H(q) + w f, whether applied and its weights
     stress_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
@@ -931,7 +931,7 @@ class SelfSensingEstimator:
         the ``members`` forced values, else the configuration's (``SensingConfig.offset_drift``), "auto" where
         neither forces one."""
         return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto"),
-                                           "stress": getattr(self.config, "stress", "auto")})
+                                           "stress": getattr(self.config, "stress", "off")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -1043,7 +1043,7 @@ class SelfSensingEstimator:
         return model, rep
 
     def _stress_member(self, cal_trials, cal, slope) -> dict:
-        """The load link's stress member (:mod:`selfsense.chain.load`): ``V_H = H(q) + (s_H H(q) + s_Q Q) f``, decided
+        """The load link's stress member (:mod:`selfsense.chain.load`): ``V_H = H(q) + w f``, decided
         on the calibration rows (with the adopted leakage and offset-drift columns): the charge-link reference model
         (:func:`_reference_h`) fitted on the free-tip rows gives ``H_0``; the member is adopted when the columns
         ``H_0(q) f_ref, Q f_ref`` lower the reference model's blocked-CV error by more than
@@ -1075,8 +1075,9 @@ class SelfSensingEstimator:
         cvs.append(_reference_cv(qs, ys, ex, dt))
         gain = bool(cvs[1] < (1.0 - STRESS_MIN_GAIN) * cvs[0])
         applied = mode == "on" or gain
-        note = (f"stress member {'forced on' if mode == 'on' else 'adopted' if gain else 'not supported'}: the column "
-                f"H_0(q) f_ref, Q f_ref of {loaded} give a blocked-CV error of {cvs[1]:.4g} V against {cvs[0]:.4g} V without"
+        note = (f"stress member {'forced on' if mode == 'on' else 'adopted' if gain else 'not supported'}: the columns "
+                f"H_0(q) f_ref, Q f_ref of {loaded} give a blocked-CV error of {cvs[1]:.4g} V against {cvs[0]:.4g} V "
+                "without"
                 + ("" if applied else f" (a gain of at least {STRESS_MIN_GAIN:.0%} is needed)"))
         return {"applied": applied, "mode": mode, "source": "forced" if mode == "on" else
                 ("calibration" if gain else "none"), "cv_rms_v_with": cvs[1], "cv_rms_v_without": cvs[0],
@@ -1660,8 +1661,9 @@ class SelfSensingEstimator:
     # ------------------------------------------------------------------ helpers
     def _regressors(self, df: pd.DataFrame, f: np.ndarray | None = None) -> np.ndarray:
         """``[Q, V_p]`` of a trial (thesis eq. 27). With the stress member (:mod:`selfsense.chain.load`) ``V_p`` also
-        loses ``w f`` (``w = s_H H(q) + s_Q Q``): ``f`` given (a calibration trial's known load: its force reference, 0 on a free tip), or
-        else solved with the force row in closed form (:func:`~selfsense.chain.load.stress_voltage`)."""
+        loses ``w f`` (``w = s_H (H(q) - a_H) + s_Q (Q - a_Q)``): ``f`` given (a calibration trial's known load: its
+        force reference, 0 on a free tip), or else solved with the force row in closed form
+        (:func:`~selfsense.chain.load.stress_voltage`)."""
         Q = self._charge(df)
         H = self._h(Q, df)
         V_p = piezo_voltage(df["V"].to_numpy(dtype=float), H)   # thesis eq. (27)
@@ -1679,7 +1681,7 @@ class SelfSensingEstimator:
         return float(st.get("a_h_v", 0.0)), float(st.get("a_q_c", 0.0))
 
     def stress_weights(self) -> tuple[float, float]:
-        """The stress member's ``(s_H [1/N], s_Q [V/(C N)])`` (``V_H = H(q) + (s_H H(q) + s_Q Q) f``,
+        """The stress member's ``(s_H [1/N], s_Q [V/(C N)])`` (``V_H = H(q) + (s_H (H(q) - a_H) + s_Q (Q - a_Q)) f``,
         :mod:`selfsense.chain.load`), zeros where the member is not carried."""
         st = self.stress_ or {}
         if not st.get("applied"):
