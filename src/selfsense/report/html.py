@@ -208,7 +208,8 @@ def _model_section(results_dir: Path) -> list[str]:
                  f"{'taken out of Q' if qz.get('applied') else 'not applied'}, {html.escape(str(qz['note']))}")
     st = d.get("stress") or {}
     if st.get("note"):
-        kind += (f"; stress-dependent hysteresis (load link, V_H = H(q) + (s_H H(q) + s_Q Q) f, force-reference "
+        kind += (f"; stress-dependent hysteresis (load link, V_H = H(q) + w f, w = s_H (H(q) - a_H) + s_Q (Q - a_Q), "
+                 f"force-reference "
                  f"calibration rows, docs/method.md 6f): "
                  + (f"carried, s_H = {st.get('s_h_per_n', 0.0):.4g} per N, s_Q = {st.get('s_q_v_per_c_n', 0.0):.4g} "
                     f"V/(C N)" if st.get("applied")
