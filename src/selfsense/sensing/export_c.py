@@ -490,6 +490,9 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     ab = getattr(est, "absorption_", None) or {}
     qz = getattr(est, "quantiser_", None) or {}
     h = _h_spec(est.hysteresis_, float(dt))
+    # the load link's stress member (weights 0 where it is not carried)
+    (s_h, s_q), (a_h, a_q) = ((est.stress_weights(), est.stress_offsets()) if hasattr(est, "stress_weights")
+                              else ((0.0, 0.0), (0.0, 0.0)))
     consts = {
         "R_SHUNT": _rig_get(rig, "shunt_resistance_ohm"), "INAMP": _rig_get(rig, "inamp_gain"),
         "GAIN": _rig_get(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
@@ -498,10 +501,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,
         "Q_HALF": float(qz["half_step_v"]) if qz.get("applied") else 0.0,
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
-        "KS_H": est.stress_weights()[0] if hasattr(est, "stress_weights") else 0.0,
-        "KS_Q": est.stress_weights()[1] if hasattr(est, "stress_weights") else 0.0,
-        "KS_AH": est.stress_offsets()[0] if hasattr(est, "stress_offsets") else 0.0,
-        "KS_AQ": est.stress_offsets()[1] if hasattr(est, "stress_offsets") else 0.0,
+        "KS_H": s_h, "KS_Q": s_q, "KS_AH": a_h, "KS_AQ": a_q,
         "STRESS_MIN_DEN": STRESS_MIN_DEN,
         "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],

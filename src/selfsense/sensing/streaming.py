@@ -27,7 +27,8 @@ each carry their state (O(1) memory per sample):
    ``sign * (G[Q] - c Q)``), ``RICreepH`` and ``RIModel`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11). Batch
    evaluation is the same code fed one block, so the stream equals it on any split of the samples.
 3. **Back** (one compiled loop, :func:`back_kernel`): ``V_p = V - V_H`` (eq. 27), less ``w f`` with the load
-   link's stress member (``f`` from the force row in closed form, :func:`selfsense.chain.load.stress_voltage`); ``dx_raw = A1 Q + A2 V_p + dx0``
+   link's stress member (``f`` from the force row in closed form, :func:`selfsense.chain.load.stress_voltage`);
+   ``dx_raw = A1 Q + A2 V_p + dx0``
    (the rest offset member), ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted (the kernels of
    ``selfsense.sensing.core``, which the batch estimator evaluates on arrays); sliding DC offset (thesis sec. 5.2,
    Fig. 24) on dx (and f if configured), reset whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to
