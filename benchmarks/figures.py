@@ -42,6 +42,7 @@ DATES = {
     "gap_stages": "2026-11-24",
     "gap_stages_16180": "2026-11-26",
     "gap_stages_31337": "2026-11-27",
+    "gap_stages_20261201": "2026-12-01",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -116,6 +117,9 @@ COMMANDS = {
     "gap_stages": "selfsense gap blind --n 1000 --seed 7 --jobs 2 --out benchmarks/gap_stages",
     "gap_stages_16180": "selfsense gap blind --n 1000 --seed 16180 --jobs 1 --out benchmarks/gap_stages/seed_16180",
     "gap_stages_31337": "selfsense gap blind --n 1000 --seed 31337 --jobs 2 --out benchmarks/gap_stages/seed_31337",
+    # the stand-in's H a Preisach operator with creep (the blocked stage's nominal), thresholds recalibrated
+    "gap_stages_20261201": "selfsense gap blind --n 1000 --seed 20261201 --jobs 2 "
+                           "--out benchmarks/gap_stages/seed_20261201",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     # the tip tier after the simulator's stress fix, with a carried chain member scored by its own contribution
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
@@ -577,7 +581,9 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_stages/seed_16180", "gap_stages_16180", "; simulated before the simulator's relay fix (its "
          "residual current gave preload a relay-segment signature, docs/gap.md); the seed-31337 rows are the current "
          "code and simulator"),
-        ("benchmarks/gap_stages/seed_31337", "gap_stages_31337", ""),
+        ("benchmarks/gap_stages/seed_31337", "gap_stages_31337", "; made with the earlier stand-in H (a PI of 8 plays), "
+         "the seed-20261201 rows are the current code"),
+        ("benchmarks/gap_stages/seed_20261201", "gap_stages_20261201", ""),
     ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())
