@@ -104,9 +104,13 @@ def test_calibration_is_bit_identical_across_blas_thread_settings_and_worker_thr
     assert "can fork: True" in outs["main_2forks"]
     assert a == c, [n for n in a if a[n] != c[n]]
     # the duhem candidates, where one-vs-two-thread rounding showed first, were scored in both runs
-    kinds = [r["kind"] for r in json.loads((tmp_path / "main_1thread" / "hysteresis.json").read_text())
-             ["fit_report"]["hysteresis"]["selection"]]
+    rep = json.loads((tmp_path / "main_1thread" / "hysteresis.json").read_text())["fit_report"]["hysteresis"]
+    kinds = [r["kind"] for r in rep["selection"]]
     assert "duhem" in kinds
+    # and so was the leakage search, whose searches (all rows, each leave-one-block-out) and error without leakage
+    # run in the forked workers too: its numbers are in the files compared above
+    search = rep["drift"]["search"]
+    assert search["g_cal"] is not None and len(search["g_folds"]) == 3 and not search["reused"]
 
 
 def test_single_thread_blas_reaches_libraries_loaded_later_and_other_threads():

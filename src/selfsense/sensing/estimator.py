@@ -792,7 +792,8 @@ class SelfSensingEstimator:
         """
         from scipy.optimize import minimize_scalar
 
-        from selfsense.hysteresis.models.select import blocked_folds
+        from selfsense.hysteresis.models.select import blocked_folds, cv_worker_count
+        from selfsense.parallel import fork_map
 
         def rows(g, cols=False):
             qs, ys, ex, free, names, dt = self._h_segments(cal_trials, cal, slope, g, drift_cols=cols)
@@ -835,10 +836,18 @@ class SelfSensingEstimator:
             g_cal, g_folds, base, best_cal = reuse["g_cal"], reuse["g_folds"], reuse["cv_without"], reuse["cv_with_g_cal"]
             reused = True
         else:
-            g_cal = search() if modes["leakage"] != "off" else None
+            # the searches (all rows, then each leave-one-block-out) and the error without leakage are independent
+            # of each other: up to cv_worker_count() of them at a time in forked workers (the calibration job, whose
+            # second core is otherwise idle here), one after the other elsewhere; the same bits either way
             n_rows = [len(q) for q in rows(0.0)[0]]
-            g_folds = [search(drop) for drop in blocked_folds(n_rows, 3)] if modes["leakage"] == "auto" else None
-            base = cv(0.0, True)
+            tasks = ([("search", None)] if modes["leakage"] != "off" else []) + \
+                ([("search", drop) for drop in blocked_folds(n_rows, 3)] if modes["leakage"] == "auto" else []) + \
+                [("cv", None)]
+            got = fork_map(lambda task: search(task[1]) if task[0] == "search" else cv(0.0, True), tasks,
+                           cv_worker_count())
+            g_cal = got.pop(0) if modes["leakage"] != "off" else None
+            base = got.pop()
+            g_folds = got if modes["leakage"] == "auto" else None
             best_cal = cv(g_cal, True) if g_cal is not None else None
             reused = False
         info = {"leakage_s_calibration": g_cal, "leakage_s_folds": g_folds, "cv_rms_v_without": base,

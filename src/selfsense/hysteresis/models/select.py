@@ -67,6 +67,12 @@ def cv_workers(n: int):
         _CV_WORKERS.reset(token)
 
 
+def cv_worker_count() -> int:
+    """The workers :func:`cv_workers` allows here (1 outside such a block): also those of the calibration's other
+    independent searches (the leakage search of :class:`~selfsense.sensing.estimator.SelfSensingEstimator`)."""
+    return _CV_WORKERS.get()
+
+
 #: the serial selection keeps the least-squares rows of its best candidate so far for the final fit (no second build)
 #: if they take at most this many bytes (within the fit-row cap MAX_FIT_ROWS they could take several hundred MB;
 #: 128 MB keeps the jobs inside their memory budgets, benchmarks/MEMORY.md)
