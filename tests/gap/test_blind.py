@@ -87,7 +87,7 @@ def test_fast_tier_meets_floors_from_the_campaign():
 
 
 @pytest.mark.parametrize("folder", ["gap_stages", "gap_tip", "gap_tip/seed_90210", "gap_tip/seed_27182",
-                                    "gap_tip/seed_14142"])
+                                    "gap_tip/seed_14142", "gap_tip/seed_20261202"])
 def test_committed_tip_tier_recomputes(folder):
     """The tip tier (default estimator, predicted against re-simulated tip shrink) recomputes from its records."""
     camp = ROOT / "benchmarks" / folder
