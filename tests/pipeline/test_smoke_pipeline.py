@@ -40,6 +40,14 @@ def _hashes(results: Path) -> dict[str, str]:
     return out
 
 
+def _first_difference(a: Path, b: Path) -> str:
+    """How two files differ: their sizes and the bytes around the first one that differs (a hash says only that)."""
+    x, y = a.read_bytes(), b.read_bytes()
+    i = next((k for k, (p, q) in enumerate(zip(x, y)) if p != q), min(len(x), len(y)))
+    lo = max(0, i - 60)
+    return f"{len(x)} vs {len(y)} bytes, first difference at byte {i}: {x[lo:i + 60]!r} vs {y[lo:i + 60]!r}"
+
+
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory):
     if not SAMPLE.exists():
@@ -105,11 +113,27 @@ def test_estimates_are_physical(two_runs):
 
 
 def test_bit_identical_reruns(two_runs):
+    """Two runs of the real Snakefile on the sample give the same files with the same bytes. On a failure the message
+    names every differing file with its first differing bytes, and both runs' folders are kept by pytest (basetemp),
+    so that a rare failure leaves its evidence."""
     a, b = two_runs
     ha, hb = _hashes(a), _hashes(b)
-    assert ha.keys() == hb.keys()
-    diff = [k for k in ha if ha[k] != hb[k]]
-    assert not diff, f"outputs differ between two identical runs: {diff}"
+    assert ha.keys() == hb.keys(), f"files in one run only: {sorted(ha.keys() ^ hb.keys())}"
+    diff = {k: _first_difference(a / k, b / k) for k in ha if ha[k] != hb[k]}
+    assert not diff, (f"outputs differ between two identical runs ({a} and {b}):\n"
+                      + "\n".join(f"{k}: {d}" for k, d in diff.items()))
+
+
+def test_first_difference_locates_the_differing_bytes(tmp_path):
+    """The rerun test's failure message points at the first differing byte and reports both sizes."""
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    a.write_bytes(b"git commit: 0123abcd\n")
+    b.write_bytes(b"git commit: 0123abcd + local changes\n")
+    msg = _first_difference(a, b)
+    assert msg.startswith("21 vs 37 bytes, first difference at byte 20:")
+    a.write_bytes(b"x = 1.0000000000000002")
+    b.write_bytes(b"x = 1.0000000000000004")
+    assert "first difference at byte 21:" in _first_difference(a, b)
 
 
 def test_report_in_headless_chromium(two_runs):
