@@ -409,6 +409,29 @@ def test_selected_model_is_fitted_on_the_rows_of_its_cv_bit_for_bit(monkeypatch)
     assert ref.fit_report_["n_hold_rows"] > 0
 
 
+def test_held_form_without_cv_is_the_model_the_cv_selects_bit_for_bit():
+    """select_h_model(cv=False) (a held form: the straight line and one other form, as the gap diagnostic's
+    recalibrations hold it): the form is refitted without the blocked CV -- the same model and extra coefficients,
+    bit for bit, as the selection gives where it selects that form (extra columns, hold rows, hold-only columns);
+    its table rows carry no fold errors and say the form was held. More than one form is not a held form."""
+    from selfsense.hysteresis.models.select import HELD_STATUS
+
+    qs, y, extras, holds = _rows_case()
+    form = (("linear", {}), ("preisach", {"n_grid": 6, "n_play": 3}))
+    full = select_h_model(qs, y, DT, extras=extras, candidates=form, holds=holds)
+    held = select_h_model(qs, y, DT, extras=extras, candidates=form, holds=holds, cv=False)
+    assert next(r for r in full.table if r["selected"])["kind"] == "preisach"
+    assert held.model.label() == full.model.label()
+    assert held.model.coef_.tobytes() == full.model.coef_.tobytes()
+    assert held.extra_coef.tobytes() == full.extra_coef.tobytes()
+    assert held.model.fit_report_ == full.model.fit_report_
+    assert [(r["kind"], r["selected"], r["status"]) for r in held.table] == [
+        ("linear", False, HELD_STATUS), ("preisach", True, HELD_STATUS)]
+    assert all(not r["cv_rms_v"] and np.isnan(r["cv_rms_mean_v"]) for r in held.table)
+    with pytest.raises(ValueError, match="holds one form"):
+        select_h_model(qs, y, DT, candidates=form + (("pi", {"n_play": 6}),), cv=False)
+
+
 def test_fit_refuses_rows_that_are_not_those_of_its_data():
     from selfsense.hysteresis.models import fit_rows
 

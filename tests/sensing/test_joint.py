@@ -105,6 +105,39 @@ def test_auto_selection_in_the_pipeline_equals_the_public_selection():
         np.testing.assert_allclose(est2.hysteresis_.predict(qs[0]), est.hysteresis_.predict(qs[0]), rtol=0, atol=1e-9)
 
 
+def test_held_form_without_selection_cv_is_the_selected_model_and_is_reported():
+    """h_selection_cv=False with h_candidates = selected_form() (the gap diagnostic's recalibrations): the held form
+    is refitted without the blocked CV -- the same H(q), extra coefficients, sensing coefficients and estimates, bit
+    for bit, as the fit whose blocked CV selected that form -- and the fit report says the form was held without CV
+    (a fit with the CV records nothing of the kind). The diagnostic's recalibrations are made this way."""
+    from selfsense.gap.counterfactual import _make
+    from selfsense.hysteresis.models.select import HELD_STATUS
+
+    with tempfile.TemporaryDirectory() as tmp:
+        sc = _short(draw_device("gpi", 5, "clean"), keep={"cal_free_sine", "cal_blocked_sine", "cal_free_mixed"})
+        ds, rig, meta, sigs = _dataset(sc, tmp)
+        cfg = SensingConfig(drift="off")
+        est = SelfSensingEstimator(config=cfg, rig=rig).fit(sigs, meta)
+        form = est.selected_form()
+        assert len(form) == 2 and form[1][0] != "linear"
+        held = _make(lambda r: SelfSensingEstimator(config=cfg, rig=r), rig, form=form)
+        assert held.h_selection_cv is False and held.h_candidates == form
+        held.fit(sigs, meta)
+        assert held.hysteresis_.label() == est.hysteresis_.label()
+        assert held.hysteresis_.coef_.tobytes() == est.hysteresis_.coef_.tobytes()
+        assert np.asarray(held.fit_report_["hysteresis"]["extra_coef"]).tobytes() == \
+            np.asarray(est.fit_report_["hysteresis"]["extra_coef"]).tobytes()
+        assert held.coef_ == est.coef_
+        h = held.fit_report_["hysteresis"]
+        assert "held" in h["selection_cv"] and "without blocked CV" in h["selection_cv"]
+        assert [(r["kind"], r["selected"], r["status"]) for r in h["selection"]] == [
+            ("linear", False, HELD_STATUS), (form[1][0], True, HELD_STATUS)]
+        assert "selection_cv" not in est.fit_report_["hysteresis"]
+        e1, e2 = held.estimate(sigs["cal_free_mixed"]), est.estimate(sigs["cal_free_mixed"])
+        for c in ("dx_hat", "f_hat"):
+            assert e1[c].to_numpy().tobytes() == e2[c].to_numpy().tobytes()
+
+
 def test_leakage_compensation_recovers_an_injected_leakage():
     """A Preisach device with only a 3 nS insulation leakage injected: the calibration finds g within 30 % and
     applies it (the gates of tests/sensing/test_gates.py: the calibration rows' blocked-CV error not higher with g,

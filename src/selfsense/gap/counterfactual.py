@@ -142,10 +142,15 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     recalibration refits the selected form beside the straight line instead of repeating the whole selection, so
     that before and after differ by the correction or the member alone, not by a change of the selected form.
     ``reuse``: the fitted estimator's leakage search (:func:`_search_of`), taken over by a recalibration on the same
-    calibration inputs (the estimator checks their digest) instead of searched again."""
+    calibration inputs (the estimator checks their digest) instead of searched again. The held form is refitted
+    without the blocked CV between it and the straight line (``h_selection_cv = False``: the same model bit for bit
+    wherever the CV would select the form; where it would not, the form is still held -- the recalibration scores
+    the correction or the member, not a change of form)."""
     est = make_estimator(rig)
     if form and hasattr(est, "h_candidates"):
         est.h_candidates = tuple(form)
+        if hasattr(est, "h_selection_cv"):
+            est.h_selection_cv = False
     if reuse and hasattr(est, "leakage_search_reuse"):
         est.leakage_search_reuse = dict(reuse)
     if members:

@@ -383,6 +383,19 @@ def member_modes(members: Mapping[str, str] | None, configured: Mapping[str, str
     return out
 
 
+def _held_linear_form(candidates) -> bool:
+    """Whether ``candidates`` hold one form (:meth:`SelfSensingEstimator.selected_form`: the straight line and at most
+    one other form) whose model is linear in its parameters -- the forms :attr:`SelfSensingEstimator.h_selection_cv`
+    lets a refit take without the blocked CV."""
+    from selfsense.hysteresis.models import LinearParamH, make_model
+
+    forms = [c for c in candidates if c[0] != "linear"]
+    if not candidates or len(forms) > 1:
+        return False
+    kind, params = forms[0] if forms else candidates[0]
+    return isinstance(make_model(kind, **dict(params)), LinearParamH)
+
+
 def _reference_h():
     """The reference H(q) of the charge-link searches (leakage, quantiser, amplifier rows): a 12 x 12 Preisach grid
     with 6 plays, creep and ridge 1e-4, fixed whatever H(q) the configuration selects, so that a search's numbers
@@ -560,6 +573,15 @@ class SelfSensingEstimator:
     #: configured ``h_model``. ``compare_modes`` passes the straight line and the pipeline's selected candidate, so that
     #: a second calibration mode refits the selected form instead of repeating the whole selection
     h_candidates: tuple = ()
+    #: False: a held form (``h_candidates`` = :meth:`selected_form`, a form linear in its parameters) is refitted
+    #: without the blocked CV that would only decide between it and the straight line
+    #: (``select_h_model(..., cv=False)``): the final fit of the selection reads no CV number, so the model is the one
+    #: the CV gives, bit for bit, wherever the form beats the straight line -- as it did in the fit it was taken from.
+    #: The fit report records it (``fit_report_["hysteresis"]["selection_cv"]``). The gap diagnostic's
+    #: recalibrations set it (:func:`selfsense.gap.counterfactual._make`): each held form is fitted, never the
+    #: straight line in its place. A form not linear in its parameters keeps the CV (the leakage check of
+    #: :meth:`_leakage_check_with_selected` reads its CV error)
+    h_selection_cv: bool = True
     #: the leakage search of an earlier fit (its ``fit_report_["hysteresis"]["drift"]["search"]``): reused, not
     #: searched again, when it was made on the same calibration inputs (``inputs_sha256``: the charge, voltage, force
     #: and relay of the calibration trials and the gauge slope, bit for bit). The search does not depend on the
@@ -964,8 +986,9 @@ class SelfSensingEstimator:
             raise CalibrationError("trials.csv: no calibration trial with tip 'free'; H(q) is calibrated on one")
         candidates = tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg)
         holds = self._hold_set(slope, drift_cols=self.offset_drift_)
+        use_cv = self.h_selection_cv or not _held_linear_form(self.h_candidates)
         sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds)
+                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
             from selfsense.hysteresis.models import make_model
@@ -1047,6 +1070,9 @@ class SelfSensingEstimator:
                "drift": drift_info, "stress": dict(self.stress_), "extra_coef": [float(c) for c in sel.extra_coef],
                "hold_rows": self._hold_rows_report(holds, model),
                "n_samples_fit": int(sum(len(q) for q in qs))}
+        if not use_cv:
+            rep["selection_cv"] = (f"held: {model.label()} refitted without blocked CV (h_selection_cv off; "
+                                   "the held form is not compared with the straight line)")
         log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep

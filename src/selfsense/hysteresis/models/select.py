@@ -329,14 +329,23 @@ def json_safe_table(table: list[dict]) -> list[dict]:
 
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
-                   rotate_folds: bool | None = None, holds=None) -> SelectionResult:
+                   rotate_folds: bool | None = None, holds=None, cv: bool = True) -> SelectionResult:
     """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
     columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
 
     ``free``: boolean per segment, the free-tip segments (a model without extra-column support is fitted on the
     first of them). ``trial_names``: used in warnings and errors. ``holds``
     (:class:`~selfsense.hysteresis.models.holds.HoldSet`): reference-free hold rows of every trial, fitted by the
-    models linear in their parameters and scored for every candidate (each hold held out in one fold)."""
+    models linear in their parameters and scored for every candidate (each hold held out in one fold).
+
+    ``cv=False``: a held form (``candidates`` = the straight line and at most one other form, e.g.
+    :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.selected_form`) is fitted without the blocked CV: the
+    form other than the straight line (the straight line when there is none) is selected and refitted on all rows
+    by the same final fit as after the CV -- the final fit reads no CV number, so the model is bit-identical to the
+    one the CV gives wherever it selects that form. Its table rows carry no fold errors (NaN) and the status
+    :data:`HELD_STATUS`; no warning or straight-line check is made (they read the CV)."""
+    if not cv:
+        return _fit_held(qs, ys, dt, extras, free, candidates, holds)
     qs = [np.asarray(q, float) for q in qs]
     ys = [np.asarray(y, float) for y in ys]
     lengths = [len(q) for q in qs]
@@ -408,10 +417,41 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         warnings.append(f"H(q) on {names}: {best['label']} does not beat the PI baseline out of sample")
     for w in warnings:
         log.warning(w)
+    model, extra_coef = _final_fit(best, qs, ys, dt, E, lengths, free, holds,
+                                   kept[1] if kept is not None and kept[0] is best else None)
+    return SelectionResult(model=model, extra_coef=extra_coef, table=table, warnings=warnings)
+
+
+#: status of the table rows of a form held without the blocked CV (``select_h_model(..., cv=False)``)
+HELD_STATUS = "held: fitted without blocked CV"
+
+
+def _fit_held(qs, ys, dt: float, extras, free, candidates, holds) -> SelectionResult:
+    """``select_h_model(..., cv=False)``: the held form refitted on all rows, with the arguments prepared as the
+    selection prepares them and the same final fit (:func:`_final_fit`)."""
+    qs = [np.asarray(q, float) for q in qs]
+    ys = [np.asarray(y, float) for y in ys]
+    lengths = [len(q) for q in qs]
+    free = np.ones(len(qs), bool) if free is None else np.asarray(free, bool)
+    forms = [c for c in candidates if c[0] != "linear"]
+    if len(forms) > 1 or not candidates:
+        raise ValueError("select_h_model(cv=False) holds one form (beside the straight line), got "
+                         f"{[c[0] for c in candidates]}")
+    i_held = next((i for i, c in enumerate(candidates) if c[0] != "linear"), 0)
+    table = [{"kind": kind, "params": dict(params), "label": make_model(kind, **params).label(), "cv_rms_v": [],
+              "cv_rms_mean_v": float("nan"), "status": HELD_STATUS, "selected": i == i_held}
+             for i, (kind, params) in enumerate(candidates)]
+    model, extra_coef = _final_fit(next(r for r in table if r["selected"]), qs, ys, dt,
+                                   _stack_extra(extras, lengths), lengths, free, holds if holds else None, None)
+    return SelectionResult(model=model, extra_coef=extra_coef, table=table, warnings=[])
+
+
+def _final_fit(best: dict, qs, ys, dt: float, E, lengths, free, holds, rows):
+    """The selected row's model refitted on all calibration rows (``rows``: its stacked least-squares rows kept
+    from the CV, or None) and its extra coefficients."""
     model = make_model(best["kind"], **best["params"])
     if isinstance(model, LinearParamH):
-        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds,
-                  rows=kept[1] if kept is not None and kept[0] is best else None)
+        model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds, rows=rows)
         extra_coef = model.extra_coef_
     elif getattr(model, "joint_extra", False):
         model.fit(qs, ys, dt, extra=None if E is None else split_rows(E, lengths), holds=holds)
@@ -424,4 +464,4 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
             extra_coef, *_ = np.linalg.lstsq(E, r, rcond=None)
         else:
             extra_coef = np.zeros(0)
-    return SelectionResult(model=model, extra_coef=np.asarray(extra_coef, float), table=table, warnings=warnings)
+    return model, np.asarray(extra_coef, float)
