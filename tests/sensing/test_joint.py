@@ -200,6 +200,41 @@ def test_a_reused_leakage_search_gives_the_fit_a_new_search_gives_and_only_on_th
         assert auto.leakage_s_ == first.leakage_s_
 
 
+def test_the_leakage_search_memo_gives_the_numbers_of_building_every_row_again(monkeypatch):
+    """The leakage search keeps the calibration rows and the reference model's stacked rows at each conductance it
+    visits (a bounded memo, LEAK_MEMO_ENTRIES): the searches revisit the same g, and the decision, every number of
+    the drift report and the fitted H(q) are the same bits as with no memo (0 entries), with fewer rows built."""
+    import json
+
+    import selfsense.sensing.estimator as est_mod
+
+    sc = _short(draw_device("preisach", 21, "clean"))
+    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
+    with tempfile.TemporaryDirectory() as tmp:
+        ds, rig, meta, sigs = _dataset(sc, tmp)
+        built = []
+        seg = SelfSensingEstimator._h_segments
+
+        def spy(self, *a, **k):
+            built.append(1)
+            return seg(self, *a, **k)
+
+        monkeypatch.setattr(SelfSensingEstimator, "_h_segments", spy)
+        fits = {}
+        for n in (est_mod.LEAK_MEMO_ENTRIES, 0):
+            monkeypatch.setattr(est_mod, "LEAK_MEMO_ENTRIES", n)
+            built.clear()
+            e = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"hold_rows": "off"})
+            fits[n] = (e.fit_hysteresis(sigs, meta), len(built))
+        (memo, n_memo), (plain, n_plain) = fits.values()
+        assert n_memo < n_plain
+        d_memo, d_plain = (f.fit_report_["hysteresis"]["drift"] for f in (memo, plain))
+        assert d_memo["applied"] and memo.leakage_s_ > 0
+        assert json.dumps(d_memo, sort_keys=True, default=str) == json.dumps(d_plain, sort_keys=True, default=str)
+        q = sigs["cal_free_sine"]["q"].to_numpy()
+        assert memo.hysteresis_.predict(q).tobytes() == plain.hysteresis_.predict(q).tobytes()
+
+
 def test_leakage_measured_by_the_holds_is_not_rechecked_by_the_selected_form():
     """Thesis protocol, Bouc-Wen drift seed 4 (4.2 nS injected): the calibration rows' search gives 20 nS, which the
     holds of every trial contradict; their reference-free measurement (5.2 nS) takes its place. The selected Duhem
