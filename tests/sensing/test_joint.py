@@ -115,7 +115,7 @@ def test_held_form_without_selection_cv_is_the_selected_model_and_is_reported():
 
     with tempfile.TemporaryDirectory() as tmp:
         sc = _short(draw_device("gpi", 5, "clean"), keep={"cal_free_sine", "cal_blocked_sine", "cal_free_mixed"})
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _, rig, meta, sigs = _dataset(sc, tmp)
         cfg = SensingConfig(drift="off")
         est = SelfSensingEstimator(config=cfg, rig=rig).fit(sigs, meta)
         form = est.selected_form()
@@ -211,7 +211,7 @@ def test_the_leakage_search_memo_gives_the_numbers_of_building_every_row_again(m
     sc = _short(draw_device("preisach", 21, "clean"))
     sc["effects"].update({"leakage": 3.0, "preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _, rig, meta, sigs = _dataset(sc, tmp)
         built = []
         seg = SelfSensingEstimator._h_segments
 
