@@ -132,3 +132,34 @@ def test_a_leakage_path_is_not_taken_for_an_absorption_branch():
     fit = fit_absorption(_free(tr, me))
     assert not fit.supported
     assert fit.cv_rms_m_with > 0.95 * fit.cv_rms_m_leak, fit.note
+
+
+def test_absorption_and_hold_evidence_are_memoised_on_the_trials_content(absorbing, monkeypatch):
+    """fit_absorption and hold_evidence are pure functions of the trials' columns: a second call on the same content
+    (the gap diagnostic's recalibrations that toggle a member) takes the kept result -- equal, and a copy of its own --
+    while a changed charge, another argument or another value of a module threshold the function reads computes
+    again."""
+    import selfsense.chain.charge as ch
+
+    tr, me, rig = absorbing[:3]
+    free = _free(tr, me)
+    ch.fit_absorption.cache.clear()
+    a = fit_absorption(free)
+    b = fit_absorption({t: df.copy() for t, df in free.items()})
+    assert len(ch.fit_absorption.cache) == 1 and a.to_dict() == b.to_dict() and a is not b
+    b.note = "changed by a caller"
+    assert fit_absorption(free).note == a.note
+    t0 = next(iter(free))
+    moved = dict(free, **{t0: free[t0].assign(q=free[t0]["q"] + 1e-12)})
+    fit_absorption(moved)
+    fit_absorption(free, n_blocks=4)
+    assert len(ch.fit_absorption.cache) == 3
+    frames = {t: df[["t", "V", "q", "relay"]] for t, df in tr.items()}
+    ch.hold_evidence.cache.clear()
+    e1 = ch.hold_evidence(frames).to_dict()
+    monkeypatch.setattr(ch, "Z_SUPPORT", ch.Z_SUPPORT * 2)
+    e2 = ch.hold_evidence(frames).to_dict()
+    assert len(ch.hold_evidence.cache) == 2
+    monkeypatch.undo()
+    assert ch.hold_evidence(frames).to_dict() == e1 and len(ch.hold_evidence.cache) == 2
+    assert e2["g_s"] == e1["g_s"]
