@@ -1111,7 +1111,8 @@ class SelfSensingEstimator:
         if not use_cv:
             rep["selection_cv"] = (f"held: {model.label()} refitted without blocked CV (h_selection_cv off; "
                                    "the held form is not compared with the straight line)")
-        log.info("H(q): %s selected by blocked CV on %s (%.1f s), leakage %.3g S", model.label(), names,
+        log.info("H(q): %s %s on %s (%.1f s), leakage %.3g S", model.label(),
+                 "selected by blocked CV" if use_cv else "held (refitted without blocked CV)", names,
                  time.perf_counter() - t0, self.leakage_s_)
         return model, rep
 
