@@ -24,14 +24,8 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 from datetime import datetime, timezone  # noqa: E402
 from pathlib import Path  # noqa: E402
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-
-def _seeds(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
-    return out
 
 
 def run_device(family: str, preset: str, seed: int) -> dict:
@@ -68,7 +62,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     recs = []
     for f in a.families.split(","):
-        for s in _seeds(a.seeds):
+        for s in int_ranges(a.seeds):
             for p in a.presets.split(","):
                 r = run_device(f, p, s)
                 recs.append(r)

@@ -29,14 +29,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-
-def _seeds(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
-    return out
 
 
 def device(family: str, seed: int) -> dict:
@@ -140,7 +134,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="6,9")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    recs = [device(a.family, s) for s in _seeds(a.seeds)]
+    recs = [device(a.family, s) for s in int_ranges(a.seeds)]
     text = markdown(recs)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(text)

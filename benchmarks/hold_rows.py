@@ -27,14 +27,8 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-
-def _ints(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
-    return out
 
 
 def run_device(family: str, preset: str, seed: int, hold_s: float) -> dict:
@@ -119,7 +113,7 @@ def main(argv=None) -> int:
     rec_path = a.out / "records.jsonl"
     recs = [json.loads(x) for x in rec_path.read_text().splitlines()] if rec_path.exists() else []
     done = {(r["family"], r["preset"], r["seed"], r["hold_s"]) for r in recs}
-    todo = [(f, p, s, float(h)) for f in a.families.split(",") for p in a.presets.split(",") for s in _ints(a.seeds)
+    todo = [(f, p, s, float(h)) for f in a.families.split(",") for p in a.presets.split(",") for s in int_ranges(a.seeds)
             for h in a.holds.split(",") if (f, p, s, float(h) or 1.2) not in done]
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
         for rec in pool.map(run_device, *zip(*todo)) if todo else []:

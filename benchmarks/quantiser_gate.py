@@ -28,17 +28,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 FAMILIES = ("bouc_wen", "gpi", "jiles_atherton", "preisach", "rate_kp")
 PRESETS = ("clean", "drift")
 
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b or a) + 1))
-    return out
 
 
 def _link(args) -> dict:
@@ -123,7 +117,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    devices = [(f, p, s) for f in a.families.split(",") for p in a.presets.split(",") for s in _seeds(a.seeds)]
+    devices = [(f, p, s) for f in a.families.split(",") for p in a.presets.split(",") for s in int_ranges(a.seeds)]
     link_path = out / "link.jsonl"
     done = {}
     if link_path.exists():

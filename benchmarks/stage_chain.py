@@ -33,14 +33,8 @@ import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-
-def _seeds(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
-    return out
 
 
 def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict | None = None) -> dict:
@@ -170,7 +164,7 @@ def main(argv=None) -> int:
             members = json.loads(a.members)
             done = {(r["family"], r["preset"], r["seed"]) for r in recs}
             for f in a.families.split(","):
-                for s in _seeds(a.seeds):
+                for s in int_ranges(a.seeds):
                     for p in a.presets.split(","):
                         if (f, p, s) in done:
                             continue

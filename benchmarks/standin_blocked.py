@@ -26,14 +26,8 @@ from datetime import datetime, timezone  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _args import int_ranges  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
-
-def _range(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
-    return out
 
 
 def run_case(i: int, seed: int) -> dict:
@@ -55,7 +49,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", required=True, help="case indices, e.g. 100-123")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    recs = [run_case(i, a.seed) for i in _range(a.cases)]
+    recs = [run_case(i, a.seed) for i in int_ranges(a.cases)]
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
