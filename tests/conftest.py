@@ -16,6 +16,17 @@ SAMPLE_TABLE3_PCT = {"displacement": 3.37, "force": 2.95}
 TABLE3_TOL_POINTS = 0.3
 
 
+@pytest.fixture(autouse=True)
+def _fresh_content_memos():
+    """Every test starts with empty content memos (``selfsense.chain.charge.clear_memos``): their key does not hold
+    the functions a memoised function calls, so a test that monkeypatches one of those must not be served a result
+    that an earlier test computed in the same worker."""
+    from selfsense.chain.charge import clear_memos
+
+    clear_memos()
+    yield
+
+
 @pytest.fixture
 def sample_table3_pins() -> dict:
     """{measurement: (measured %, tolerance in points)} for the sample dataset's Table 3."""

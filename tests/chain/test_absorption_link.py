@@ -163,3 +163,27 @@ def test_absorption_and_hold_evidence_are_memoised_on_the_trials_content(absorbi
     monkeypatch.undo()
     assert ch.hold_evidence(frames).to_dict() == e1 and len(ch.hold_evidence.cache) == 2
     assert e2["g_s"] == e1["g_s"]
+
+
+def test_clear_memos_lets_a_replaced_callee_take_effect(absorbing, monkeypatch):
+    """The memo's key holds the trials, the arguments and the module constants, not the functions called: after one
+    of those is replaced, the kept result is still served until :func:`clear_memos` empties the caches."""
+    import selfsense.chain.charge as ch
+
+    tr = absorbing[0]
+    frames = {t: df[["t", "V", "q", "relay"]] for t, df in tr.items()}
+    before = ch.hold_evidence(frames).to_dict()
+    assert before["n_holds"] > 0
+    real, calls = ch._hold_rows, []
+
+    def no_holds(*args, **kwargs):  # a replaced callee: no trial has a hold
+        calls.append(args[0])
+        return []
+
+    monkeypatch.setattr(ch, "_hold_rows", no_holds)
+    assert ch.hold_evidence(frames).to_dict() == before and calls == []  # served from the memo
+    ch.clear_memos()
+    assert all(len(f.cache) == 0 for f in (ch.hold_evidence, ch.fit_absorption))
+    after = ch.hold_evidence(frames).to_dict()
+    assert calls and after["n_holds"] == 0 and after != before
+    assert real is not no_holds

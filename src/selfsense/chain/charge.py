@@ -187,6 +187,17 @@ def _wls(X, y, w):
 
 #: results kept per memoised function (:func:`_memo_by_content`): each is a small record (KB), not the trials
 MEMO_ENTRIES = 8
+#: the caches of every memoised function, for :func:`clear_memos`
+_MEMO_CACHES: list = []
+
+
+def clear_memos() -> None:
+    """Empty the caches of the memoised functions (:func:`_memo_by_content`). The key holds the inputs and the
+    module constants a function reads, not the functions it calls: code that replaces one of those (a test's
+    monkeypatch, an interactive session redefining a helper) clears the caches first, or it is served the result
+    computed before (the test suite does so before every test, ``tests/conftest.py``)."""
+    for c in _MEMO_CACHES:
+        c.clear()
 
 
 def _frames_digest(trials: Mapping[str, pd.DataFrame]) -> str:
@@ -240,6 +251,7 @@ def _memo_by_content(fn):
         return copy.deepcopy(cache[key])
 
     wrapper.cache = cache
+    _MEMO_CACHES.append(cache)
     return wrapper
 
 
