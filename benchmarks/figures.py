@@ -64,6 +64,8 @@ DATES = {
     "stage_chain_corroborated_fresh400": "2026-11-28",
     "stage_chain_holds_g_fresh500": "2026-11-28",
     "stage_chain_corroborated_fresh500": "2026-11-28",
+    "stage_chain_before_selection_leak_fresh600": "2026-12-02",
+    "stage_chain_selection_leak_fresh600": "2026-12-02",
     "whole_device_holds_g": "2026-11-27",
     "whole_device_quantiser": "2026-11-27",
     "whole_device_quantiser_bound": "2026-11-27",
@@ -161,6 +163,11 @@ COMMANDS = {
                                     "corroboration rule)",
     "stage_chain_corroborated_fresh500": "python benchmarks/stage_chain.py devices --seeds 500-505 --hold-s 0 "
                                          "--out benchmarks/stage_chain/corroborated_fresh500",
+    "stage_chain_before_selection_leak_fresh600": "python benchmarks/stage_chain.py devices --seeds 600-605 --hold-s 0 "
+                                                  "--out benchmarks/stage_chain/before_selection_leak_fresh600 (the "
+                                                  "code before the leakage-by-selection rule)",
+    "stage_chain_selection_leak_fresh600": "python benchmarks/stage_chain.py devices --seeds 600-605 --hold-s 0 "
+                                           "--out benchmarks/stage_chain/selection_leak_fresh600",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -532,8 +539,12 @@ def stage_chain_figures() -> list[Fig]:
              ("benchmarks/stage_chain/holds_g_fresh500/records.jsonl", ", fresh seeds 500-505, the code before the "
               "leakage corroboration rule", "stage_chain_holds_g_fresh500"),
              ("benchmarks/stage_chain/corroborated_fresh500/records.jsonl", ", fresh seeds 500-505, leakage where the "
-              "calibration rows and the holds agree (its first contact; current code)",
-              "stage_chain_corroborated_fresh500")]
+              "calibration rows and the holds agree (its first contact)",
+              "stage_chain_corroborated_fresh500"),
+             ("benchmarks/stage_chain/before_selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, the code "
+              "before the leakage-by-selection rule", "stage_chain_before_selection_leak_fresh600"),
+             ("benchmarks/stage_chain/selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, leakage decided "
+              "again by the H(q) selection (its first contact; current code)", "stage_chain_selection_leak_fresh600")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -560,7 +571,8 @@ def stage_chain_figures() -> list[Fig]:
     out = [row(recs, fam, what, rel, key) for fam, (recs, rel, what, key) in sorted(newest.items())]
     # on each fresh seed set: its first contact and the current code; the scorings between them are history
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
-               "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500"}
+               "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
+               "stage_chain_selection_leak_fresh600"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)

@@ -78,7 +78,11 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
             "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False)),
             "selected_form_check": {k: d["selected_form_check"][k] for k in ("form", "kept")}
-            if d.get("selected_form_check") else None}
+            if d.get("selected_form_check") else None,
+            # leakage the search's reference rejected, decided again by the H(q) selection (docs/method.md 6c)
+            "selected_form_decision": {k: d["selected_form_decision"].get(k) for k in
+                                       ("leakage_s", "cv_rms_v_without", "cv_rms_v_with", "form_with", "adopted")}
+            if d.get("selected_form_decision") else None}
 
 
 def summary_devices(recs: list[dict]) -> str:

@@ -393,3 +393,46 @@ def test_the_estimator_applies_leakage_that_the_calibration_rows_and_the_holds_a
     assert abs(g_cal - g_holds) <= 0.25 * max(g_cal, g_holds)
     assert est.leakage_s_ == g_cal == pytest.approx(sc["effects"]["leakage"] * 1e-9, rel=0.4)
     assert "selected_form_check" not in drift
+
+
+def test_leakage_rejected_by_the_search_reference_is_adopted_by_the_h_selection():
+    """Jiles-Atherton tip case 3 of seed 20261202 (28.5 nS injected, leakage alone): the search's reference Preisach
+    model, whose creep bank takes up the ramp g int V dt of a 9 s trial, rejects the calibration rows' g. The H(q)
+    selection repeated with leakage on finds a best candidate (the Duhem form) with a blocked-CV error several times
+    lower, so leakage is adopted with that selection; the same device without leakage (its twin: same drive and
+    noise) is left without it. The rule reads no reference beyond the calibration trials."""
+    import selfsense.sensing.estimator as est_mod
+    from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case
+    from selfsense.gap.blindsim import simulate_family_case
+
+    c = draw_tip_case(3, 20261202)
+    assert c["family"] == "jiles_atherton" and list(c["effects"]) == ["slow.leakage"]
+    g_true = c["effects"]["slow.leakage"] * 2.5e-9
+    fits, data = {}, {}
+    for name, eff in (("leaky", c["effects"]), ("twin", {})):
+        data[name] = simulate_family_case(c["family"], c["device_seed"], eff, c["noise_seed"], T_CASE, FS_CASE)
+        tr, me, rig = data[name]
+        fits[name] = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(tr, me)
+    drift = fits["leaky"].fit_report_["hysteresis"]["drift"]
+    dec = drift["selected_form_decision"]
+    assert not leakage_rejected_reason_missing(drift)
+    assert dec["adopted"] and drift["applied"] and drift["source"] == "H(q) selection"
+    assert dec["cv_rms_v_with"] < est_mod.LEAK_SELECTED_FORM_RATIO * dec["cv_rms_v_without"]
+    assert fits["leaky"].leakage_s_ == dec["leakage_s"] == pytest.approx(g_true, rel=0.25)
+    assert fits["leaky"].hysteresis_.label() == dec["form_with"]
+    assert "adopted by the H(q) selection" in drift["note"]
+    twin = fits["twin"].fit_report_["hysteresis"]["drift"]
+    assert fits["twin"].leakage_s_ == 0.0 and not twin["applied"]
+    assert not twin.get("selected_form_decision", {}).get("adopted", False)
+    # a recalibration that holds the selected form (the gap diagnostic's) decides on that form's CV: the same g
+    tr, me, rig = data["leaky"]
+    held = SelfSensingEstimator(config=SensingConfig(), rig=rig)
+    held.h_candidates, held.h_selection_cv = tuple(fits["leaky"].selected_form()), False
+    held.fit_hysteresis(tr, me)
+    assert held.leakage_s_ == fits["leaky"].leakage_s_
+    assert held.hysteresis_.label() == fits["leaky"].hysteresis_.label()
+
+
+def leakage_rejected_reason_missing(drift: dict) -> bool:
+    """The search's own verdict is still reported beside the selection's: its g and its CV numbers."""
+    return drift.get("leakage_s_calibration") is None or drift.get("cv_rms_v_without") is None

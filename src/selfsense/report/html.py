@@ -181,7 +181,9 @@ def _model_section(results_dir: Path) -> list[str]:
             src = {"holds": " (from the holds of all trials)", "calibration": " (from the calibration rows)",
                    "holds' measurement": " (the holds' measurement, in place of a contradicted search)",
                    "calibration and holds agree": " (from the calibration rows, agreeing with the holds of all "
-                                                  "trials)"}.get(str(drift.get("source")), "")
+                                                  "trials)",
+                   "H(q) selection": " (from the calibration rows, adopted by the H(q) selection's blocked CV)"}.get(
+                       str(drift.get("source")), "")
             kind += (f"; charge leakage {'compensated, ' + format(drift.get('leakage_s', 0) * 1e9, '.2f') + ' nS' + src if drift.get('applied') else 'not compensated'}"
                      f", offset drift {'compensated' if drift.get('offset_drift_applied') else 'not compensated'}"
                      + (f" ({html.escape(str(drift['note']))})" if drift.get("note") else ""))
