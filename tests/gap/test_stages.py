@@ -274,3 +274,38 @@ def test_standin_carries_the_free_tip_loop_to_the_blocked_tip(case, bound):
     sm = S.build_stage("blocked", sigs, ctx, nominal_only=True)
     assert c["family"] == ("preisach" if case == 100 else "bouc_wen")
     assert sm.r(sm.nominal) / sm.y_rms < bound
+
+
+def test_tip_table_scores_a_kept_estimate_of_the_same_inputs():
+    """``tip_table(..., seen=, inputs_of=)``: a table of the same fitted estimator on the same estimator inputs (it
+    differs by output corrections only) scores the estimate kept from the first table instead of estimating again,
+    and gives the very numbers of a fresh estimate."""
+    import pandas as pd
+
+    from selfsense.gap.counterfactual import tip_table
+
+    class Counting:
+        calls = 0
+
+        def estimate(self, df):
+            Counting.calls += 1
+            return pd.DataFrame({"dx_hat": 2.0 * df["q"], "f_hat": 0.5 * df["V"]})
+
+    n = 600
+    t = np.arange(n) * 1e-3
+    df = pd.DataFrame({"t": t, "q": np.sin(7 * t), "V": np.cos(3 * t), "dx_ref": 2.1 * np.sin(7 * t),
+                       "f_ref": 0.4 * np.cos(3 * t)})
+    meta = pd.DataFrame({"role": ["validation", "validation", "calibration"],
+                         "reference": ["displacement", "force", "displacement"]}, index=["a", "b", "c"])
+    trials = {"a": df, "b": df, "c": df}
+    est, out = Counting(), {"a": {"dx": np.full(n, 1e-3)}, "b": {"f": np.linspace(0.0, 0.01, n)}}
+    plain = tip_table(trials, meta, None, None, estimator=est)
+    fresh = tip_table(trials, meta, None, None, out, estimator=est)
+    assert Counting.calls == 4   # two validation trials, two tables
+    seen: dict = {}
+    first = tip_table(trials, meta, None, None, estimator=est, seen=seen, inputs_of=lambda trial: ())
+    second = tip_table(trials, meta, None, None, out, estimator=est, seen=seen, inputs_of=lambda trial: ())
+    assert Counting.calls == 6   # the second table made no estimate of its own
+    assert first == plain and second == fresh
+    tip_table(trials, meta, None, None, estimator=est, seen=seen, inputs_of=lambda trial: ("slow.leakage",))
+    assert Counting.calls == 8   # other input corrections: estimated again

@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 
 from selfsense.hysteresis.models import PlayH
-from selfsense.hysteresis.models._grid import relaxation_bank
+from selfsense.hysteresis.models._grid import (
+    preisach_grid_features,
+    preisach_grid_rows,
+    relaxation_bank,
+)
 from selfsense.hysteresis.models.holds import HoldSet, hold_design, hold_residual
 from selfsense.hysteresis.models.select import select_h_model
 from selfsense.hysteresis.operators import play_operator
@@ -100,3 +104,48 @@ def test_selection_scores_every_candidate_on_the_holds():
     assert sel.model.kind == "pi" and sel.model.creep
     no_creep = next(r for r in sel.table if r["kind"] == "pi" and not r["params"].get("creep", True))
     assert no_creep["cv_rms_mean_v"] > next(r for r in sel.table if r["selected"])["cv_rms_mean_v"]
+
+
+def _full_design_rows(m, hs, n_cal, n_cols):
+    """hold_design's rows built from each trial's whole design matrix (the construction before ``design_rows``)."""
+    from selfsense.hysteresis.models.holds import difference_rows
+
+    return difference_rows(hs, n_cal, n_cols, lambda i, s: (m.design(hs.qs[i], DT, s)[0], None))
+
+
+@pytest.mark.parametrize("kind, params", [("preisach", {"n_grid": 12, "n_play": 4}), ("preisach", {"n_grid": 7}),
+                                          ("pi", {"n_play": 6})])
+def test_hold_design_builds_only_the_hold_rows_with_the_same_bits(kind, params):
+    """The hold rows are built from each trial's design at the rows the holds read (``design_rows``; a Preisach grid
+    runs its state over every sample and writes those rows only): bit for bit the rows of the whole design matrix,
+    with and without thinning, with and without hold-only columns."""
+    from selfsense.hysteresis.models import make_model
+
+    rng = np.random.default_rng(5)
+    q1, h1 = _steps([0.4, 0.9, 0.2], hold_s=3.0)
+    q2 = QREF * np.cumsum(rng.standard_normal(4000)) / 60.0
+    qs, holds = [q1, q2, _sine()], [h1, [(300, 900), (1500, 1510), (2500, 3999)], []]
+    m = make_model(kind, **params).prepare(np.concatenate(qs), DT)
+    for extras in (None, [np.column_stack([np.arange(len(q)) * DT, (np.arange(len(q)) * DT) ** 2]) for q in qs]):
+        hs = HoldSet(qs=qs, ys=[_truth(q) for q in qs], holds=holds, names=["a", "b", "c"], extras=extras)
+        for n_cal in (10 ** 6, 900):   # stride 1, and hold rows thinned to every k-th sample
+            got = hold_design(m, hs, DT, n_cal, m.n_columns() + 2)
+            ref = _full_design_rows(m, hs, n_cal, m.n_columns() + 2)
+            for a, b in zip(got, ref):
+                assert a.shape == b.shape and a.dtype == b.dtype
+                assert np.array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
+def test_preisach_grid_rows_are_the_rows_of_the_whole_feature_matrix():
+    """preisach_grid_rows: any sorted set of grid rows (runs, isolated rows, the first and the last) has the bits of
+    the same rows of preisach_grid_features, at any stride; rows that are not sorted and distinct are refused."""
+    rng = np.random.default_rng(9)
+    u = np.clip(0.5 + np.cumsum(rng.standard_normal(6000)) * 0.02, -0.1, 1.1)
+    for n, stride in ((5, 1), (9, 3), (16, 1)):
+        full = preisach_grid_features(u, 0.0, 1.0, n, stride)
+        R = full.shape[0]
+        rows = np.unique(np.concatenate([[0, R - 1], np.arange(R // 3, R // 3 + 200), rng.integers(0, R, 40)]))
+        got = preisach_grid_rows(u, 0.0, 1.0, n, stride, rows)
+        assert np.array_equal(got.view(np.uint8), full[rows].view(np.uint8))
+    with pytest.raises(ValueError, match="sorted"):
+        preisach_grid_rows(u, 0.0, 1.0, 5, 1, np.array([3, 2]))

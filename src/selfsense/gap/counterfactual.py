@@ -186,21 +186,35 @@ def _form_of(fitted) -> tuple:
 
 
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
-              estimator=None, members: dict | None = None, form: tuple = (), reuse=None):
+              estimator=None, members: dict | None = None, form: tuple = (), reuse=None,
+              seen: dict | None = None, inputs_of: Callable | None = None):
     """Per validation trial: thesis Table 3's error (mean |estimate - reference| in % of the trial's reference
     range, every finite sample, :func:`selfsense.report.tables.trial_errors`) and the same per contiguous block
-    (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted)."""
+    (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted).
+
+    ``seen`` and ``inputs_of`` (with ``estimator``): estimates already made by this estimator, kept in ``seen`` under
+    ``(id(estimator), trial, inputs_of(trial))``, where ``inputs_of(trial)`` names the corrections of the trial's
+    estimator inputs (Q, V) applied to ``trials``: tables that differ only by output corrections (charge-free motion,
+    load stage) score the same estimate of the same inputs, which is made once (the same numbers: ``estimate`` is a
+    deterministic function of the fitted estimator and the trial's columns)."""
     est = estimator if estimator is not None else _make(make_estimator, rig, members, form, reuse).fit(trials, meta)
+    keep = seen is not None and inputs_of is not None and estimator is not None
     rows = {}
     for t, m in meta.iterrows():
         if m["role"] != "validation":
             continue
         df = trials[t]
-        e = est.estimate(df)
         meas = "displacement" if m["reference"] == "displacement" else "force"
         ref, col, ok = ("dx_ref", "dx_hat", "dx") if meas == "displacement" else ("f_ref", "f_hat", "f")
+        key = (id(est), t, inputs_of(t)) if keep else None
+        if key is not None and key in seen:
+            yh = seen[key]
+        else:
+            yh = est.estimate(df)[col].to_numpy(float)
+            if key is not None:
+                yh.flags.writeable = False
+                seen[key] = yh
         y = df[ref].to_numpy(float)
-        yh = e[col].to_numpy(float)
         if out_corr and t in out_corr and ok in out_corr[t]:
             yh = yh + out_corr[t][ok]
         fin = np.isfinite(y) & np.isfinite(yh)
@@ -295,6 +309,13 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         tr_fit, _ = _apply(trials, [corr[n] for n in sorted(S_fit)], meta)
         return _make(make_estimator, rig, dict(mem_items), form, _search_of(fitted)).fit(tr_fit, meta)
 
+    def inputs_in(S: frozenset) -> Callable:
+        """trial -> the effects of S whose corrections change that trial's estimator inputs (Q, V), in the order
+        :func:`_apply` applies them: the key of an estimate made on ``_apply(trials, S)`` (:func:`tip_table`)."""
+        return lambda t: tuple(n for n in sorted(S) if any(k in ("q", "V") for k in corr[n].get(t, {})))
+
+    seen: dict = {}   # estimates of the validation trials by (estimator, trial, input corrections), see tip_table
+
     def table(S: frozenset, bare: bool = True, mem: dict | None = None):
         mem = members_of(S, bare) if mem is None else mem
         key = (S, tuple(sorted(mem.items())))
@@ -308,7 +329,8 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                 if k not in ests:
                     ests[k] = refit(k)
                 est = ests[k]
-            tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=est, members=mem, form=form)
+            tabs[key] = tip_table(tr, meta, rig, make_estimator, oc, estimator=est, members=mem, form=form,
+                                  seen=seen, inputs_of=inputs_in(S))
         return tabs[key]
 
     def planned():
@@ -341,11 +363,12 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         if len(groups) > 1:
             def unit(k):
                 est = refit(k)
-                out = {}
+                out, mine = {}, {}
                 for S, mem in groups[k]:
                     tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
                     out[(S, tuple(sorted(mem.items())))] = tip_table(tr, meta, rig, make_estimator, oc,
-                                                                     estimator=est, members=mem, form=form)
+                                                                     estimator=est, members=mem, form=form,
+                                                                     seen=mine, inputs_of=inputs_in(S))
                 return out
 
             for done in fork_map(unit, list(groups), workers):

@@ -29,8 +29,8 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from ._grid import (grid_state, play_features, play_output, preisach_grid_features, preisach_grid_output, relaxation_bank,
-                    relaxation_output)
+from ._grid import (grid_state, play_features, play_output, preisach_grid_features, preisach_grid_output,
+                    preisach_grid_rows, relaxation_bank, relaxation_output)
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
            "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError"]
@@ -166,6 +166,12 @@ class LinearParamH:
         pen[:nb] = True
         pen[nb + 1:nb + 1 + len(taus)] = True
         return X, pen
+
+    def design_rows(self, q, dt: float, stride: int, rows) -> np.ndarray:
+        """Rows ``rows`` (sorted, distinct indices) of ``design(q, dt, stride)[0]``, the same values; models whose
+        basis can skip the rows not asked for (:class:`PreisachH`) do so."""
+        X, _ = self.design(q, dt, stride)
+        return X[np.asarray(rows, dtype=np.int64)]
 
     def prepare(self, q, dt: float) -> "LinearParamH":
         """Set the input normalisation (charge range of the calibration data) and the sample time, without
@@ -510,6 +516,27 @@ class PreisachH(LinearParamH):
         if self.n_play:
             r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
             out[:, nc:] = play_features(u, r, int(stride))
+
+    def design_rows(self, q, dt: float, stride: int, rows) -> np.ndarray:
+        """Rows ``rows`` of ``design(q, dt, stride)[0]``, bit for bit, with the grid features of those rows only
+        (:func:`~selfsense.hysteresis.models._grid.preisach_grid_rows`: the state runs over every sample, the
+        cells are integrated and written at the rows asked for); the play, linear, creep and offset columns are
+        those of :meth:`design`, taken at the rows."""
+        rows = np.asarray(rows, dtype=np.int64)
+        stride = int(stride)
+        u = np.ascontiguousarray(self._u(q), dtype=float)
+        taus = list(self.creep_tau_s) if self.creep and self.creep_tau_s else []
+        nb, nc = self._n_basis(), self.n_grid * (self.n_grid + 1) // 2
+        X = np.empty((rows.size, nb + 2 + len(taus)))
+        preisach_grid_rows(u, 0.0, 1.0, self.n_grid, stride, rows, out=X[:, :nc])
+        if self.n_play:
+            r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+            X[:, nc:nb] = play_features(u, r, stride)[rows]
+        X[:, nb] = u[::stride][rows]
+        for j, t in enumerate(taus):
+            X[:, nb + 1 + j] = relaxation_bank(u, float(dt), [t])[::stride, 0][rows]
+        X[:, -1] = 1.0
+        return X
 
     def _basis_state(self):
         return {"grid": grid_state(self.n_grid), "play": np.zeros(self.n_play)}

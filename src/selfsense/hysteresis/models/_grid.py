@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["preisach_grid_features", "preisach_grid_output", "relaxation_bank", "relaxation_output", "GRID_STACK",
+__all__ = ["preisach_grid_features", "preisach_grid_rows", "preisach_grid_output", "relaxation_bank", "relaxation_output", "GRID_STACK",
            "grid_state", "play_output"]
 
 _BIG = 1e300
@@ -59,6 +59,45 @@ def preisach_grid_features(u, lo, hi, n, stride=1, out=None):
                          f"got {out.dtype} {out.shape}")
     _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
           int(stride), Ms, ms, st, Fc, out)
+    return out
+
+
+def preisach_grid_rows(u, lo, hi, n, stride, rows, out=None):
+    """Rows ``rows`` (sorted, distinct indices of the grid ``0, stride, 2 stride, ...``) of
+    :func:`preisach_grid_features` ``(u, lo, hi, n, stride)``, the same values bit for bit, without building the
+    others: the state still runs over every sample from the relaxed state, fed block after block (:func:`_grid`),
+    and a block of samples with no requested row writes one scratch row only. The same bits because a cell's
+    up-fraction is integrated afresh from the part of the staircase over that cell (:func:`_cell_fraction`) whenever
+    an input step marks it, and a step that marks no cell leaves that part unchanged: the value at a row does not
+    depend on which earlier rows were written. Used where a few rows of a long record are read (the hold rows,
+    :func:`selfsense.hysteresis.models.holds.hold_design`: about a quarter of every trial's samples)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    nc = int(n) * (int(n) + 1) // 2
+    stride = int(stride)
+    if out is None:
+        out = np.zeros((rows.size, nc))
+    elif out.shape != (rows.size, nc) or out.dtype != np.float64 or out.strides[1] != 8:
+        raise ValueError(f"preisach_grid_rows: out must be float64 of shape {(rows.size, nc)} with contiguous rows, "
+                         f"got {out.dtype} {out.shape}")
+    n_rows = (len(u) + stride - 1) // stride
+    if rows.size and (rows[0] < 0 or rows[-1] >= n_rows or np.any(np.diff(rows) <= 0)):
+        raise ValueError(f"preisach_grid_rows: rows must be sorted, distinct and within the {n_rows} grid rows")
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    Ms, ms, st, Fc = grid_state(n)
+    st[1] = lo
+    # the row a block without requested rows writes: a strided view, like the basis block of a design matrix that
+    # preisach_grid_features fills (numba compiles one variant of _grid per array layout)
+    scratch = np.empty((2, nc + 1))[:, :nc]
+    none = np.zeros(0)
+    cut = np.flatnonzero(np.diff(rows) != 1) + 1   # runs of consecutive rows
+    k0 = 0
+    for a, b in zip(np.concatenate([[0], cut]), np.concatenate([cut, [rows.size]])):
+        s0 = int(rows[a]) * stride
+        if s0 > k0:   # the samples before this run: the state only
+            _grid(u[k0:s0], float(lo), float(hi), int(n), none, False, s0 - k0, Ms, ms, st, Fc, scratch)
+        e0 = min(u.size, int(rows[b - 1]) * stride + stride)
+        _grid(u[s0:e0], float(lo), float(hi), int(n), none, False, stride, Ms, ms, st, Fc, out[a:b])
+        k0 = e0
     return out
 
 

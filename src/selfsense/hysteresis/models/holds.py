@@ -115,27 +115,57 @@ def difference_rows(holds: HoldSet, n_cal_rows: int, n_cols: int, per_trial):
     with zeros to ``n_cols`` columns (the extra columns of the calibration rows do not act on a hold), then come the
     :meth:`HoldSet.n_extra` hold-only columns ``e``; and the running index of each row's hold (for the CV folds)."""
     s, w = _stride_and_weight(holds, n_cal_rows)
-    Xs, ys, ids = [], [], []
+    rows = holds.rows(s)
+    n_x = holds.n_extra()
+    # one matrix, each hold's rows written into their block (the values of stacking w [D | 0 | e] block by block)
+    Xh = np.zeros((sum(idx.size for _, idx, _, _ in rows), n_cols + n_x))
+    ys, ids = [], []
     cache = {}
-    for i, idx, a0, h in holds.rows(s):
+    r0 = 0
+    for i, idx, a0, h in rows:
         if i not in cache:
             cache[i] = per_trial(i, s)
         X, p = cache[i]
         y = np.asarray(holds.ys[i], float)
         D = X[idx // s] - X[a0 // s]
-        Xs.append(w * np.column_stack([D, np.zeros((idx.size, n_cols - D.shape[1])), holds.extra_rows(i, idx, a0)]))
+        r1 = r0 + idx.size
+        np.multiply(w, D, out=Xh[r0:r1, :D.shape[1]])
+        if n_x:
+            np.multiply(w, holds.extra_rows(i, idx, a0), out=Xh[r0:r1, n_cols:])
+        r0 = r1
         dy = y[idx] - y[a0]
         ys.append(w * (dy if p is None else dy - (p[idx // s] - p[a0 // s])))
         ids.append(np.full(idx.size, h))
-    if not Xs:
-        return np.zeros((0, n_cols + holds.n_extra())), np.zeros(0), np.zeros(0, int)
-    return np.vstack(Xs), np.concatenate(ys), np.concatenate(ids)
+    if not ys:
+        return np.zeros((0, n_cols + n_x)), np.zeros(0), np.zeros(0, int)
+    return Xh, np.concatenate(ys), np.concatenate(ids)
+
+
+class _GridRows:
+    """Rows of a trial's design matrix on the grid ``0, stride, ...``, of which only ``rows`` (sorted) were built:
+    ``X[j]`` / ``X[index array]`` as the full matrix would answer for those rows."""
+
+    def __init__(self, rows: np.ndarray, X: np.ndarray):
+        self.rows, self.X = rows, X
+
+    def __getitem__(self, j):
+        return self.X[np.searchsorted(self.rows, j)]
 
 
 def hold_design(model, holds: HoldSet, dt: float, n_cal_rows: int, n_cols: int):
     """:func:`difference_rows` of a model linear in its parameters
-    (:class:`~selfsense.hysteresis.models.LinearParamH`, prepared on the calibration rows): its design matrix."""
-    return difference_rows(holds, n_cal_rows, n_cols, lambda i, s: (model.design(holds.qs[i], dt, s)[0], None))
+    (:class:`~selfsense.hysteresis.models.LinearParamH`, prepared on the calibration rows): its design matrix, of
+    each trial only at the rows the holds read (``design_rows`` where the model has it: the hold rows are about a
+    quarter of a record, and the Preisach grid's features cost per row written), the same values."""
+    if not hasattr(model, "design_rows"):
+        return difference_rows(holds, n_cal_rows, n_cols, lambda i, s: (model.design(holds.qs[i], dt, s)[0], None))
+
+    def per_trial(i, s):
+        rows = np.unique(np.concatenate([np.concatenate([idx // s, [a0 // s]])
+                                         for j, idx, a0, _ in holds.rows(s) if j == i]))
+        return _GridRows(rows, model.design_rows(holds.qs[i], dt, s, rows)), None
+
+    return difference_rows(holds, n_cal_rows, n_cols, per_trial)
 
 
 def hold_residual(model, holds: HoldSet, dt: float, n_cal_rows: int):
