@@ -520,7 +520,7 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/holds_g/records.jsonl", ", the holds' leakage exempt from the selected-form "
                 "check", "stage_chain_holds_g"),
                ("benchmarks/stage_chain/corroborated/records.jsonl", ", leakage where the calibration rows and the "
-                "holds agree (current code)", "stage_chain_corroborated")]
+                "holds agree (the code before the leakage-by-selection rule of 2026-12-02)", "stage_chain_corroborated")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
@@ -532,10 +532,10 @@ def stage_chain_figures() -> list[Fig]:
               "majority (its first contact)", "stage_chain_fold_majority_fresh400"),
              ("benchmarks/stage_chain/holds_g_fresh400/records.jsonl", ", seeds 400-405 (seen once), the holds' "
               "leakage exempt from the selected-form check", "stage_chain_holds_g_fresh400"),
-             ("benchmarks/stage_chain/corroborated_fresh300/records.jsonl", ", seeds 300-305 (seen before), current "
-              "code", "stage_chain_corroborated_fresh300"),
-             ("benchmarks/stage_chain/corroborated_fresh400/records.jsonl", ", seeds 400-405 (seen before), current "
-              "code", "stage_chain_corroborated_fresh400"),
+             ("benchmarks/stage_chain/corroborated_fresh300/records.jsonl", ", seeds 300-305 (seen before), the code "
+              "before the leakage-by-selection rule", "stage_chain_corroborated_fresh300"),
+             ("benchmarks/stage_chain/corroborated_fresh400/records.jsonl", ", seeds 400-405 (seen before), the code "
+              "before the leakage-by-selection rule", "stage_chain_corroborated_fresh400"),
              ("benchmarks/stage_chain/holds_g_fresh500/records.jsonl", ", fresh seeds 500-505, the code before the "
               "leakage corroboration rule", "stage_chain_holds_g_fresh500"),
              ("benchmarks/stage_chain/corroborated_fresh500/records.jsonl", ", fresh seeds 500-505, leakage where the "
