@@ -66,6 +66,8 @@ DATES = {
     "stage_chain_corroborated_fresh500": "2026-11-28",
     "stage_chain_before_selection_leak_fresh600": "2026-12-02",
     "stage_chain_selection_leak_fresh600": "2026-12-02",
+    "stage_chain_selection_leak": "2026-12-02",
+    "stage_chain_selection_leak_fresh500": "2026-12-02",
     "whole_device_holds_g": "2026-11-27",
     "whole_device_quantiser": "2026-11-27",
     "whole_device_quantiser_bound": "2026-11-27",
@@ -168,6 +170,10 @@ COMMANDS = {
                                                   "code before the leakage-by-selection rule)",
     "stage_chain_selection_leak_fresh600": "python benchmarks/stage_chain.py devices --seeds 600-605 --hold-s 0 "
                                            "--out benchmarks/stage_chain/selection_leak_fresh600",
+    "stage_chain_selection_leak": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                                  "--out benchmarks/stage_chain/selection_leak",
+    "stage_chain_selection_leak_fresh500": "python benchmarks/stage_chain.py devices --seeds 500-505 --hold-s 0 "
+                                           "--out benchmarks/stage_chain/selection_leak_fresh500",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -520,7 +526,9 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/holds_g/records.jsonl", ", the holds' leakage exempt from the selected-form "
                 "check", "stage_chain_holds_g"),
                ("benchmarks/stage_chain/corroborated/records.jsonl", ", leakage where the calibration rows and the "
-                "holds agree (the code before the leakage-by-selection rule of 2026-12-02)", "stage_chain_corroborated")]
+                "holds agree (the code before the leakage-by-selection rule of 2026-12-02)", "stage_chain_corroborated"),
+               ("benchmarks/stage_chain/selection_leak/records.jsonl", ", leakage decided again by the H(q) selection "
+                "(current code)", "stage_chain_selection_leak")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
@@ -541,6 +549,8 @@ def stage_chain_figures() -> list[Fig]:
              ("benchmarks/stage_chain/corroborated_fresh500/records.jsonl", ", fresh seeds 500-505, leakage where the "
               "calibration rows and the holds agree (its first contact)",
               "stage_chain_corroborated_fresh500"),
+             ("benchmarks/stage_chain/selection_leak_fresh500/records.jsonl", ", seeds 500-505 (seen once), leakage "
+              "decided again by the H(q) selection (current code)", "stage_chain_selection_leak_fresh500"),
              ("benchmarks/stage_chain/before_selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, the code "
               "before the leakage-by-selection rule", "stage_chain_before_selection_leak_fresh600"),
              ("benchmarks/stage_chain/selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, leakage decided "
@@ -572,7 +582,7 @@ def stage_chain_figures() -> list[Fig]:
     # on each fresh seed set: its first contact and the current code; the scorings between them are history
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
-               "stage_chain_selection_leak_fresh600"}
+               "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)
