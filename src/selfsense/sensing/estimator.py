@@ -1200,7 +1200,7 @@ class SelfSensingEstimator:
         if not g > 0.0:
             return None
         qs, ys, ex, free, names, _ = self._h_segments(cal_trials, cal, slope, g, drift_cols=od)
-        kept_g, kept_od = self.leakage_s_, self.offset_drift_
+        kept_g = self.leakage_s_
         self.leakage_s_ = g
         try:
             holds = self._hold_set(slope, drift_cols=od)
@@ -1219,9 +1219,9 @@ class SelfSensingEstimator:
                            "cv_rms_v_with": on.get("cv_rms_v_with"),
                            **{k: on[k] for k in ("offset_drift_cv_rms_v_without", "offset_drift_applied",
                                                  "offset_drift_source") if k in on}})
-        drift_info["note"] = (f"leakage {g * 1e9:.3g} nS (the calibration rows'), rejected by the search's reference "
-                              f"model, adopted by the H(q) selection: its best candidate ({row['label']}) has a "
-                              f"blocked-CV error of {cv_g:.4g} V with it against {cv_0:.4g} V without (ratio below "
+        drift_info["note"] = (f"leakage {g * 1e9:.3g} nS (from the {on.get('source')}), rejected by the search's "
+                              f"reference model, adopted by the H(q) selection: its best candidate ({row['label']}) "
+                              f"has a blocked-CV error of {cv_g:.4g} V with it against {cv_0:.4g} V without (ratio below "
                               f"{LEAK_SELECTED_FORM_RATIO:g})" + "".join(
                                   "; " + x for x in on.get("note", "").split("; ") if x.startswith("offset-drift")))
         return sel_g, qs, ys, ex, free, names, holds
