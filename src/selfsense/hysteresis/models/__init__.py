@@ -168,10 +168,25 @@ class LinearParamH:
         return X, pen
 
     def design_rows(self, q, dt: float, stride: int, rows) -> np.ndarray:
-        """Rows ``rows`` (sorted, distinct indices) of ``design(q, dt, stride)[0]``, the same values; models whose
-        basis can skip the rows not asked for (:class:`PreisachH`) do so."""
-        X, _ = self.design(q, dt, stride)
-        return X[np.asarray(rows, dtype=np.int64)]
+        """Rows ``rows`` (sorted, distinct indices) of ``design(q, dt, stride)[0]``, the same values: the basis from
+        :meth:`_basis_rows_into` (models whose basis can skip the rows not asked for, :class:`PreisachH`, do so), the
+        linear, creep and offset columns as :meth:`design` builds them, taken at the rows."""
+        rows = np.asarray(rows, dtype=np.int64)
+        stride = int(stride)
+        u = self._u(q)
+        taus = list(self.creep_tau_s) if self.creep and self.creep_tau_s else []
+        nb = self._n_basis()
+        X = np.empty((rows.size, nb + 2 + len(taus)))
+        self._basis_rows_into(u, stride, rows, X[:, :nb])
+        X[:, nb] = u[::stride][rows]
+        for j, t in enumerate(taus):
+            X[:, nb + 1 + j] = relaxation_bank(u, float(dt), [t])[::stride, 0][rows]
+        X[:, -1] = 1.0
+        return X
+
+    def _basis_rows_into(self, u: np.ndarray, stride: int, rows: np.ndarray, out: np.ndarray) -> None:
+        """Rows ``rows`` of :meth:`_basis` written into ``out``; this default builds every row."""
+        out[...] = self._basis(u, stride)[rows]
 
     def prepare(self, q, dt: float) -> "LinearParamH":
         """Set the input normalisation (charge range of the calibration data) and the sample time, without
@@ -517,26 +532,16 @@ class PreisachH(LinearParamH):
             r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
             out[:, nc:] = play_features(u, r, int(stride))
 
-    def design_rows(self, q, dt: float, stride: int, rows) -> np.ndarray:
-        """Rows ``rows`` of ``design(q, dt, stride)[0]``, bit for bit, with the grid features of those rows only
-        (:func:`~selfsense.hysteresis.models._grid.preisach_grid_rows`: the state runs over every sample, the
-        cells are integrated and written at the rows asked for); the play, linear, creep and offset columns are
-        those of :meth:`design`, taken at the rows."""
-        rows = np.asarray(rows, dtype=np.int64)
-        stride = int(stride)
-        u = np.ascontiguousarray(self._u(q), dtype=float)
-        taus = list(self.creep_tau_s) if self.creep and self.creep_tau_s else []
-        nb, nc = self._n_basis(), self.n_grid * (self.n_grid + 1) // 2
-        X = np.empty((rows.size, nb + 2 + len(taus)))
-        preisach_grid_rows(u, 0.0, 1.0, self.n_grid, stride, rows, out=X[:, :nc])
+    def _basis_rows_into(self, u, stride, rows, out):
+        """The grid features of the rows asked for only (:func:`~selfsense.hysteresis.models._grid.preisach_grid_rows`:
+        the state runs over every sample, the cells are integrated and written at those rows), bit for bit those of
+        :meth:`_basis_into`; the plays taken at the rows."""
+        u = np.ascontiguousarray(u, dtype=float)
+        nc = self.n_grid * (self.n_grid + 1) // 2
+        preisach_grid_rows(u, 0.0, 1.0, self.n_grid, int(stride), rows, out=out[:, :nc])
         if self.n_play:
             r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
-            X[:, nc:nb] = play_features(u, r, stride)[rows]
-        X[:, nb] = u[::stride][rows]
-        for j, t in enumerate(taus):
-            X[:, nb + 1 + j] = relaxation_bank(u, float(dt), [t])[::stride, 0][rows]
-        X[:, -1] = 1.0
-        return X
+            out[:, nc:] = play_features(u, r, int(stride))[rows]
 
     def _basis_state(self):
         return {"grid": grid_state(self.n_grid), "play": np.zeros(self.n_play)}
