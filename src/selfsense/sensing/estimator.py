@@ -1176,6 +1176,19 @@ class SelfSensingEstimator:
                 ("calibration" if gain else "none"), "cv_rms_v_with": cvs[1], "cv_rms_v_without": cvs[0],
                 "trials": loaded, "note": note}
 
+    def _rows_at(self, cal_trials, cal, slope, g: float, drift_cols: bool):
+        """The H(q) selection's rows with the charge corrected by leakage ``g``: the calibration segments
+        (:meth:`_h_segments`) and the hold rows of every trial (:meth:`_hold_set`, read with ``g`` for the time of
+        the call), ``(qs, ys, extras, free, names, holds)``."""
+        qs, ys, ex, free, names, _ = self._h_segments(cal_trials, cal, slope, g, drift_cols=drift_cols)
+        kept = self.leakage_s_
+        self.leakage_s_ = g
+        try:
+            holds = self._hold_set(slope, drift_cols=drift_cols)
+        finally:
+            self.leakage_s_ = kept
+        return qs, ys, ex, free, names, holds
+
     def _leakage_by_selection(self, sel, cal_trials, cal, slope, dt, candidates, drift_info):
         """The H(q) selection repeated with leakage on, which the leakage search's reference model rejected: the
         conductance and the offset-drift decision are those of ``leakage: on`` (:meth:`_leakage` forced on, reusing
@@ -1199,13 +1212,7 @@ class SelfSensingEstimator:
         drift_info["selected_form_decision"] = decision
         if not g > 0.0:
             return None
-        qs, ys, ex, free, names, _ = self._h_segments(cal_trials, cal, slope, g, drift_cols=od)
-        kept_g = self.leakage_s_
-        self.leakage_s_ = g
-        try:
-            holds = self._hold_set(slope, drift_cols=od)
-        finally:
-            self.leakage_s_ = kept_g
+        qs, ys, ex, free, names, holds = self._rows_at(cal_trials, cal, slope, g, od)
         sel_g = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=candidates,
                                n_blocks=int(self.config.cv_blocks), trial_names=names, holds=holds)
         row = next(r for r in sel_g.table if r["selected"])
@@ -1235,12 +1242,7 @@ class SelfSensingEstimator:
         form = tuple((r["kind"], r["params"]) for r in sel.table if r["kind"] == "linear") + ((row["kind"],
                                                                                               row["params"]),)
         g = self.leakage_s_
-        qs0, ys0, ex0, free0, names0, _ = self._h_segments(cal_trials, cal, slope, 0.0)
-        self.leakage_s_ = 0.0
-        try:
-            holds0 = self._hold_set(slope, drift_cols=self.offset_drift_)
-        finally:
-            self.leakage_s_ = g
+        qs0, ys0, ex0, free0, names0, holds0 = self._rows_at(cal_trials, cal, slope, 0.0, self.offset_drift_)
         sel0 = select_h_model(qs0, ys0, dt, extras=ex0, free=free0, candidates=form, n_blocks=int(self.config.cv_blocks),
                               trial_names=names0, holds=holds0)
         cv_g = float(row["cv_rms_mean_v"])
