@@ -97,6 +97,26 @@ def test_duhem_recovers_a_known_parameter_set():
     assert np.sqrt(np.mean((gf - gt) ** 2)) < 0.05 * np.ptp(gt)
 
 
+def test_a_start_from_an_earlier_fit_is_kept_where_it_fits_the_rows_better():
+    """``fit(..., starts=...)``: the earlier fit whose parameters fit the rows best is a third start of the search,
+    and the lowest objective wins. With a search cut to one evaluation the two own starts stay far from the truth;
+    the earlier fit's parameters as a start give its fit back (within 1 %); a start of the wrong length or with a
+    NaN is ignored (the same fit, bit for bit, as without it)."""
+    true = DuhemH(degree=2, creep=False)
+    true.q_lo_, true.q_span_, true.v_lo_, true.v_span_, true.dt_ = 0.0, QREF, -14.0, 34.0, DT
+    true.coef_ = np.array([20.0, -8.0, 1.0, 3.0, 2.0, 0.0, 30.0, 6.0, 1.0, -2.0, 1.0, 0.0])
+    true.lin_coef_ = np.array([2.0])
+    q = _drive(seed=3)
+    v = true.predict(q) + 0.005 * np.random.default_rng(5).standard_normal(q.size)
+    good = DuhemH(degree=2, creep=False).fit(q, v, DT)
+    short = DuhemH(degree=2, creep=False, max_nfev=1).fit(q, v, DT)
+    warm = DuhemH(degree=2, creep=False, max_nfev=1).fit(q, v, DT, starts=[np.zeros(3), good.coef_])
+    assert short.fit_report_["rms_v"] > 5 * good.fit_report_["rms_v"]
+    assert warm.fit_report_["rms_v"] < 1.01 * good.fit_report_["rms_v"]
+    junk = DuhemH(degree=2, creep=False, max_nfev=1).fit(q, v, DT, starts=[np.zeros(3), np.full(12, np.nan)])
+    assert junk.coef_.tobytes() == short.coef_.tobytes()
+
+
 def test_duhem_round_trips_through_json_and_keeps_joint_columns():
     """to_dict / from_dict (through JSON) predicts the same; an extra column (a force reference) is identified
     jointly (coefficient within 5 %); a row mask restricts the objective."""

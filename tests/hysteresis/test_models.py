@@ -432,6 +432,32 @@ def test_held_form_without_cv_is_the_model_the_cv_selects_bit_for_bit():
         select_h_model(qs, y, DT, candidates=form + (("pi", {"n_play": 6}),), cv=False)
 
 
+def test_held_non_convex_form_takes_the_fold_fits_as_starts_as_the_selection_does(monkeypatch):
+    """A held Duhem form (select_h_model(cv=False)) is fitted from the same starting points as after the selection,
+    its blocked-CV fold fits among them (select._final_fit): the same model and extra coefficients bit for bit, and
+    the final fit was given the five fold fits' parameters in both cases."""
+    import selfsense.hysteresis.models.select as S
+
+    qs, y, extras, holds = _rows_case()
+    form = (("linear", {}), ("duhem", {"degree": 2, "creep": False}))
+    given = []
+    final = S._final_fit
+
+    def spy(best, *a, starts=None, **k):
+        given.append(None if starts is None else [np.asarray(c).copy() for c in starts])
+        return final(best, *a, starts=starts, **k)
+
+    monkeypatch.setattr(S, "_final_fit", spy)
+    full = select_h_model(qs, y, DT, extras=extras, candidates=form, holds=holds)
+    held = select_h_model(qs, y, DT, extras=extras, candidates=form, holds=holds, cv=False)
+    assert full.model.kind == "duhem" and held.model.kind == "duhem"
+    assert len(given) == 2 and len(given[0]) == 5
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(given[0], given[1]))
+    assert held.model.coef_.tobytes() == full.model.coef_.tobytes()
+    assert held.extra_coef.tobytes() == full.extra_coef.tobytes()
+    assert "_starts" not in full.table[1] and "_starts" not in held.table[1]
+
+
 def test_fit_refuses_rows_that_are_not_those_of_its_data():
     from selfsense.hysteresis.models import fit_rows
 

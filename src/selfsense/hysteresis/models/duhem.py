@@ -113,18 +113,20 @@ class DuhemH:
                          vmin, vmax, int(stride), bool(jac), duhem_state() if state is None else state)
 
     # -- fit ----------------------------------------------------------------------------------------------------------
-    def fit(self, q, v, dt: float, extra=None, row_mask=None, holds=None) -> "DuhemH":
+    def fit(self, q, v, dt: float, extra=None, row_mask=None, holds=None, starts=None) -> "DuhemH":
         """Fit on one or several segments (each from the relaxed state); ``extra``: joint columns (one array per
         segment, or stacked), fitted without penalty; ``row_mask``: rows (one boolean array per segment, or stacked)
         that enter the objective (blocked cross-validation); ``holds``
         (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the reference-free hold rows of every trial join the
         linear part (creep bank, offset) once the Duhem map is fitted -- the map is rate-independent, so a hold
-        constrains the creep only. Runs with one BLAS thread: the matrices are small (<= MAX_OE_ROWS x a few
+        constrains the creep only. ``starts``: parameter vectors of earlier fits of the same form (the fold fits of
+        the blocked CV, :func:`selfsense.hysteresis.models.select._final_fit`); the one with the lowest objective
+        is a third start of the search. Runs with one BLAS thread: the matrices are small (<= MAX_OE_ROWS x a few
         dozen), and threads contending for the cores made it ten times slower."""
         from threadpoolctl import threadpool_limits
 
         with threadpool_limits(1):
-            return self._fit(q, v, dt, extra, row_mask, holds)
+            return self._fit(q, v, dt, extra, row_mask, holds, starts)
 
     def _hold_rows(self, holds, c, dt: float, n_cal: int, n_cols: int):
         """Weighted hold rows of the linear part: differences of ``[creep bank | 1]`` within each hold and of the
@@ -137,7 +139,7 @@ class DuhemH:
 
         return difference_rows(holds, n_cal, n_cols, per_trial)[:2]
 
-    def _fit(self, q, v, dt, extra, row_mask, holds=None) -> "DuhemH":
+    def _fit(self, q, v, dt, extra, row_mask, holds=None, starts=None) -> "DuhemH":
         from scipy.optimize import least_squares
 
         qs, vs = _segments(q, v)
@@ -219,8 +221,12 @@ class DuhemH:
 
         # two starts (the equation-error estimate and g = 0, a flat state): the output-error objective has local
         # minima; the lower one is kept
+        first = [c0, np.zeros(nb)]
+        given = [np.asarray(c, dtype=float) for c in (starts or ()) if np.shape(c) == (nb,) and np.isfinite(c).all()]
+        if given:   # the earlier fit whose parameters fit these rows best, without a search
+            first.append(min(given, key=lambda c: float(np.sum(resid_jac(c, False)[0] ** 2))))
         best = None
-        for start in (c0, np.zeros(nb)):
+        for start in first:
             sol = least_squares(fun, start, jac=jac, method="trf", x_scale="jac", max_nfev=self.max_nfev)
             if best is None or sol.cost < best.cost:
                 best = sol
