@@ -76,6 +76,10 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "leakage_ns": float(est.leakage_s_ * 1e9),
             "leakage_source": d.get("source", "calibration" if d.get("applied") else "none"),
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
+            "h_selected": str(est.fit_report_["hysteresis"].get("selected", "")),
+            "h_fit_rms_v": float(est.fit_report_["hysteresis"].get("rms_v", float("nan"))),
+            "h_error_dx_pct": float(est.fit_report_.get("h_error_cost", {}).get("dx_pct") or float("nan")),
+            "h_error_f_pct": float(est.fit_report_.get("h_error_cost", {}).get("f_pct") or float("nan")),
             "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False)),
             "selected_form_check": {k: d["selected_form_check"][k] for k in ("form", "kept")}
             if d.get("selected_form_check") else None,

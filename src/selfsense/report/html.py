@@ -246,6 +246,10 @@ def _model_section(results_dir: Path) -> list[str]:
                      + (f"; on the validation trials it is worth {cres.get('validation_dx_pct', 0):.3g} % of the "
                         f"displacement range and {cres.get('validation_f_pct', 0):.3g} % of the force range on average "
                         f"(1 SD of the charge error; compare Table 3)" if cres.get("limited") else "") + ".</p>")
+    hcost = d.get("fit_report", {}).get("h_error_cost") or {}
+    if hcost.get("note"):
+        parts.append(f"<p>What the error of H(q) costs the tip estimates (V_p = V - H(q) enters thesis eq. (52) "
+                     f"through A2 and B22; docs/method.md 6g): {html.escape(str(hcost['note']))}.</p>")
     meaning = {"A1": "tip displacement per total charge", "A2": "tip displacement per piezo voltage",
                "A3": "tip force per actuator charge (thesis eq. 52)", "B21": "tip force per total charge",
                "B22": "tip force per piezo voltage",

@@ -1712,7 +1712,34 @@ class SelfSensingEstimator:
             "rms_f_n": float(np.sqrt(np.mean((self._predict_raw(Xf)[1] - yf) ** 2))),
         }
         self.fit_report_["charge_resolution"] = self.charge_resolution(trials, meta)
+        self.fit_report_["h_error_cost"] = self.h_error_cost()
         return self
+
+    def h_error_cost(self) -> dict:
+        """What the error of H(q) costs the tip estimates, from the calibration alone: ``V_p = V - H(q)`` (thesis
+        eq. 27) enters eq. (52) through A2 and B22, so an error ``e`` of H moves the displacement by ``A2 e`` and the
+        force by ``B22 e``. ``e`` is the selected H(q) model's blocked-CV RMS on the calibration trials (out of
+        sample; the in-sample RMS where the form was held without CV). Reported in % of the calibration references'
+        ranges (the scale of Table 3): where it is large, the load moves V_p little against what H(q) misses (a weakly
+        coupled device), and the tip estimates cannot be better than this on drives like the calibration's; drives
+        the calibration never saw (holds, minor loops) add the H(q) model's extrapolation error."""
+        rep = self.fit_report_.get("hysteresis", {})
+        row = next((r for r in rep.get("selection", []) if r.get("selected")), None)
+        cv = float(row["cv_rms_mean_v"]) if row is not None and row.get("cv_rms_mean_v") is not None else float("nan")
+        e, source = (cv, "blocked CV") if np.isfinite(cv) else (float(rep.get("rms_v", float("nan"))), "in sample")
+        if not np.isfinite(e):   # (JSON artefacts hold no NaN)
+            return {"h_error_v": None, "source": None, "dx_pct": None, "f_pct": None,
+                    "note": "no H(q) error on record: not assessed"}
+        spans = {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
+                 "f": float(np.ptp(self.ranges_.get("f", [0.0, 0.0])))}
+        pct = {}
+        for key, coef, span in (("dx_pct", "A2", spans["dx"]), ("f_pct", "B22", spans["f"])):
+            c = abs(float(self.coef_.get(coef, 0.0)))
+            pct[key] = float(c * e / span * 100.0) if span > 0 else 0.0
+        note = (f"H(q) misses {e:.3g} V RMS ({source}, calibration trials); through A2 and B22 (thesis eq. 52) that "
+                f"moves the tip estimates by {pct['dx_pct']:.3g} % of the displacement range and {pct['f_pct']:.3g} % "
+                f"of the force range on drives like the calibration's (compare Table 3)")
+        return {"h_error_v": e, "source": source, **pct, "note": note}
 
     def _shunt_resistance(self) -> float | None:
         """The rig's shunt resistance [ohm], or None where the rig gives none (the charge resolution is then not
