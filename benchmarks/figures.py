@@ -68,6 +68,9 @@ DATES = {
     "stage_chain_selection_leak_fresh600": "2026-12-02",
     "stage_chain_selection_leak": "2026-12-02",
     "stage_chain_selection_leak_fresh500": "2026-12-02",
+    "stage_chain_fold_starts": "2026-12-02",
+    "stage_chain_before_fold_starts_fresh700": "2026-12-02",
+    "stage_chain_fold_starts_fresh700": "2026-12-02",
     "whole_device_holds_g": "2026-11-27",
     "whole_device_quantiser": "2026-11-27",
     "whole_device_quantiser_bound": "2026-11-27",
@@ -174,6 +177,13 @@ COMMANDS = {
                                   "--out benchmarks/stage_chain/selection_leak",
     "stage_chain_selection_leak_fresh500": "python benchmarks/stage_chain.py devices --seeds 500-505 --hold-s 0 "
                                            "--out benchmarks/stage_chain/selection_leak_fresh500",
+    "stage_chain_fold_starts": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                               "--out benchmarks/stage_chain/fold_starts",
+    "stage_chain_before_fold_starts_fresh700": "python benchmarks/stage_chain.py devices --seeds 700-702 --hold-s 0 "
+                                               "--out benchmarks/stage_chain/before_fold_starts_fresh700 (the code "
+                                               "of commit e0d11bc)",
+    "stage_chain_fold_starts_fresh700": "python benchmarks/stage_chain.py devices --seeds 700-702 --hold-s 0 "
+                                        "--out benchmarks/stage_chain/fold_starts_fresh700",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -528,7 +538,9 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/corroborated/records.jsonl", ", leakage where the calibration rows and the "
                 "holds agree (the code before the leakage-by-selection rule of 2026-12-02)", "stage_chain_corroborated"),
                ("benchmarks/stage_chain/selection_leak/records.jsonl", ", leakage decided again by the H(q) selection "
-                "(current code)", "stage_chain_selection_leak")]
+                "(before the fold starts of the non-convex final fit)", "stage_chain_selection_leak"),
+               ("benchmarks/stage_chain/fold_starts/records.jsonl", ", the non-convex final fit also started from its "
+                "fold fits (current code)", "stage_chain_fold_starts")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
@@ -550,11 +562,16 @@ def stage_chain_figures() -> list[Fig]:
               "calibration rows and the holds agree (its first contact)",
               "stage_chain_corroborated_fresh500"),
              ("benchmarks/stage_chain/selection_leak_fresh500/records.jsonl", ", seeds 500-505 (seen once), leakage "
-              "decided again by the H(q) selection (current code)", "stage_chain_selection_leak_fresh500"),
+              "decided again by the H(q) selection", "stage_chain_selection_leak_fresh500"),
              ("benchmarks/stage_chain/before_selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, the code "
               "before the leakage-by-selection rule", "stage_chain_before_selection_leak_fresh600"),
              ("benchmarks/stage_chain/selection_leak_fresh600/records.jsonl", ", fresh seeds 600-605, leakage decided "
-              "again by the H(q) selection (its first contact; current code)", "stage_chain_selection_leak_fresh600")]
+              "again by the H(q) selection (its first contact)", "stage_chain_selection_leak_fresh600"),
+             ("benchmarks/stage_chain/before_fold_starts_fresh700/records.jsonl", ", fresh seeds 700-702, the code "
+              "before the fold starts of the non-convex final fit", "stage_chain_before_fold_starts_fresh700"),
+             ("benchmarks/stage_chain/fold_starts_fresh700/records.jsonl", ", fresh seeds 700-702, the non-convex "
+              "final fit also started from its fold fits (its first contact; current code)",
+              "stage_chain_fold_starts_fresh700")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
