@@ -208,7 +208,7 @@ def test_a_leakage_search_of_the_other_gauge_is_reused_only_when_asked_and_finds
     sc = _short(draw_device("preisach", 21, "clean"))
     sc["effects"].update({"leakage": 3.0, "preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _, rig, meta, sigs = _dataset(sc, tmp)
         thesis = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
         search = thesis.fit_report_["hysteresis"]["drift"]["search"]
         onsite = SensingConfig(h_mode="onsite")
