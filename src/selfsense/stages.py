@@ -246,9 +246,13 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
     fitted again: its row is scored on that model's estimates (the same numbers, without refitting the model
     selection), read from ``estimate_paths`` (the pipeline's estimates) where given, else estimated here -- the
     pipeline's rule does not wait for the estimate jobs, it runs beside them. The selected model's other calibration mode
-    refits the H form the pipeline's blocked CV selected (with the straight line it must beat) in that mode's gauge,
-    instead of repeating the whole selection: the gauges differ by a term linear in Q, which every linear-in-parameter
-    candidate absorbs in its unpenalised linear column."""
+    refits the H form the pipeline's blocked CV selected in that mode's gauge, instead of repeating the whole
+    selection: the gauges differ by a term linear in Q, which every linear-in-parameter candidate absorbs in its
+    unpenalised linear column. For the same reason the form is held without the blocked CV against the straight line
+    (``h_selection_cv``: the model the CV gives wherever the form beats the line, as it did in the pipeline's gauge)
+    and the pipeline's leakage search is taken over (``leakage_search_any_gauge``: the search's reference model
+    absorbs the gauge term the same way; a fresh search in the other gauge found the same conductance to a relative
+    2e-12 on tweezer_sim, and modes.csv / modes.md came out byte-identical)."""
     from selfsense.report import tables
 
     rig = sio.load_rig(dataset_dir)
@@ -283,10 +287,13 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                 ests[(h_model, ident, mode)] = pipeline
                 reused = (h_model, ident, mode)
                 continue
-            # the other calibration mode of the selected model: the H form the pipeline's blocked CV selected
-            # (beside the straight line it must beat), refitted in this mode's gauge -- not a second selection
+            # the other calibration mode of the selected model: the H form the pipeline's blocked CV selected,
+            # refitted in this mode's gauge with the pipeline's leakage search -- not a second selection or search
             cands = pipeline.selected_form() if pipeline is not None and h_model == "auto" else ()
-            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig, h_candidates=cands).fit(sigs, meta)
+            held = {"h_candidates": cands, "h_selection_cv": False, "leakage_search_any_gauge": True,
+                    "leakage_search_reuse": (pipeline.fit_report_.get("hysteresis", {}).get("drift") or {}).get(
+                        "search")} if cands else {}
+            ests[(h_model, ident, mode)] = SelfSensingEstimator(config=sc, rig=rig, **held).fit(sigs, meta)
         pts: dict = {c: [] for c in combos}
         left_out = {}
         for t in sorted(signal_paths):

@@ -200,6 +200,31 @@ def test_a_reused_leakage_search_gives_the_fit_a_new_search_gives_and_only_on_th
         assert auto.leakage_s_ == first.leakage_s_
 
 
+def test_a_leakage_search_of_the_other_gauge_is_reused_only_when_asked_and_finds_the_same_conductance():
+    """``compare_modes`` refits the selected form in the on-site gauge (paper eq. 23) with the thesis gauge's search
+    (``leakage_search_any_gauge``): the targets differ by a term linear in the charge, which the search's reference
+    model absorbs, so a fresh on-site search finds the same conductance up to rounding; without the flag the other
+    gauge's search is not taken."""
+    sc = _short(draw_device("preisach", 21, "clean"))
+    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
+    with tempfile.TemporaryDirectory() as tmp:
+        _, rig, meta, sigs = _dataset(sc, tmp)
+        thesis = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
+        search = thesis.fit_report_["hysteresis"]["drift"]["search"]
+        onsite = SensingConfig(h_mode="onsite")
+        fresh = SelfSensingEstimator(config=onsite, rig=rig, leakage_search_reuse=search).fit_hysteresis(sigs, meta)
+        d_fresh = fresh.fit_report_["hysteresis"]["drift"]
+        assert not d_fresh["search"]["reused"]
+        again = SelfSensingEstimator(config=onsite, rig=rig, leakage_search_reuse=search,
+                                     leakage_search_any_gauge=True).fit_hysteresis(sigs, meta)
+        d_again = again.fit_report_["hysteresis"]["drift"]
+        assert d_again["search"]["reused"] and d_again["search"]["g_cal"] == search["g_cal"]
+        assert d_fresh["search"]["g_cal"] == pytest.approx(search["g_cal"], rel=1e-6)
+        assert d_fresh["search"]["cv_without"] == pytest.approx(search["cv_without"], rel=1e-9)
+        assert again.leakage_s_ == pytest.approx(fresh.leakage_s_, rel=1e-6)
+        assert d_again["applied"] == d_fresh["applied"] and d_again["source"] == d_fresh["source"]
+
+
 def test_the_leakage_search_memo_gives_the_numbers_of_building_every_row_again(monkeypatch):
     """The leakage search keeps the calibration rows and the reference model's stacked rows at each conductance it
     visits (a bounded memo, LEAK_MEMO_ENTRIES): the searches revisit the same g, and the decision, every number of

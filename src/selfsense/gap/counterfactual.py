@@ -304,10 +304,20 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             return frozenset(n for n in S if touches_inputs(n)), tuple(sorted(mem.items()))
         return S, tuple(sorted(mem.items()))
 
+    searches: dict = {}   # the leakage search of a recalibration, by the input corrections it was fitted on
+
     def refit(k):
         S_fit, mem_items = k
         tr_fit, _ = _apply(trials, [corr[n] for n in sorted(S_fit)], meta)
-        return _make(make_estimator, rig, dict(mem_items), form, _search_of(fitted)).fit(tr_fit, meta)
+        # the leakage search reads the calibration inputs alone (not the forced members): a recalibration on the
+        # same corrected inputs as an earlier one takes that one's search over (the estimator checks the inputs'
+        # digest and searches again where it differs), else the fitted estimator's (valid without input corrections)
+        est = _make(make_estimator, rig, dict(mem_items), form, searches.get(S_fit) or _search_of(fitted))
+        est = est.fit(tr_fit, meta)
+        got = _search_of(est)
+        if got and got.get("g_folds") is not None and S_fit not in searches:
+            searches[S_fit] = got
+        return est
 
     def inputs_in(S: frozenset) -> Callable:
         """trial -> the effects of S whose corrections change that trial's estimator inputs (Q, V), in the order
@@ -333,6 +343,16 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                                   seen=seen, inputs_of=inputs_in(S))
         return tabs[key]
 
+    def shapley_subsets():
+        """The subsets of the confirmed effects scored on the chain with the carried members off: every one for the
+        exact Shapley values (at most 3 effects), else only all of them together ("after all"; with more effects no
+        Shapley value is computed, so the single effects' tables on that chain would be read by nothing)."""
+        if len(names) <= 3:
+            for k in range(1, len(names) + 1):
+                yield from combinations(names, k)
+        else:
+            yield tuple(names)
+
     def planned():
         """Every (S, bare, mem) this function scores below, in order: with ``workers > 1`` their recalibrations and
         tables are computed in one pool first. Only a prefetch: a table missing here is computed where it is asked
@@ -345,11 +365,8 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         yield frozenset(), True, None
         for n in names:
             yield (frozenset(), True, {CHAIN_MEMBERS[n]: "off"}) if is_carried(n) else (frozenset([n]), False, None)
-        for k in range(1, len(names) + 1):
-            if len(names) > 3 and k not in (1, len(names)):
-                continue
-            for S in combinations(names, k):
-                yield frozenset(S), True, None
+        for S in shapley_subsets():
+            yield frozenset(S), True, None
 
     if workers > 1:
         # the recalibrations are independent: each, with the tables scored on it, in a process of its own (the fits
@@ -409,11 +426,8 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                              "shrink_interval_90": interval(fitted_tab, after)}
         if n in CHAIN_MEMBERS and can_force:
             res["effects"][n]["how"] = "the estimator recalibrated with the chain member forced on"
-    for k in range(1, len(names) + 1):
-        if len(names) > 3 and k not in (1, len(names)):
-            continue
-        for S in combinations(names, k):
-            table(frozenset(S))
+    for S in shapley_subsets():
+        table(frozenset(S))
     allS = frozenset(names)
     res["after_all"] = _summary(table(allS))
     res["shrink_all"] = res["base"]["mean"] - res["after_all"]["mean"]
