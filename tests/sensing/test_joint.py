@@ -63,7 +63,7 @@ def test_public_modified_pi_fit_equals_the_pipelines_and_beats_a_line():
 def test_auto_selection_in_the_pipeline_equals_the_public_selection():
     with tempfile.TemporaryDirectory() as tmp:
         sc = _short(draw_device("gpi", 5, "clean"), keep={"cal_free_sine", "cal_blocked_sine", "cal_free_mixed"})
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(drift="off"), rig=rig).fit_hysteresis(sigs, meta)
         n, C = rig.n_actuators, rig.actuator_catalog.capacitance_f
         qs, ys, ex, free = [], [], [], []
@@ -155,20 +155,26 @@ def test_leakage_compensation_recovers_an_injected_leakage():
     sc0 = _short(draw_device("preisach", 21, "clean"))
     sc0["effects"].update({"preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc0, tmp)
+        _ds, rig, meta, sigs = _dataset(sc0, tmp)
         clean.rig = rig
         clean.fit_hysteresis(sigs, meta)
         assert clean.leakage_s_ == 0.0 or clean.leakage_s_ < 0.3e-9
+
+
+def _leaky_preisach(tmp):
+    """A short Preisach device (seed 21) with 3 nS of leakage and no preload: (rig, meta, prepared trials)."""
+    sc = _short(draw_device("preisach", 21, "clean"))
+    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
+    _, rig, meta, sigs = _dataset(sc, tmp)
+    return rig, meta, sigs
 
 
 def test_a_reused_leakage_search_gives_the_fit_a_new_search_gives_and_only_on_the_same_inputs():
     """The gap diagnostic's recalibrations take over the pipeline fit's leakage search when their calibration inputs
     are the same bits: the fit is then bit for bit the fit that searches again; other inputs (the charge moved by
     1 pC) or a forced mode that needs numbers the reused search lacks search again."""
-    sc = _short(draw_device("preisach", 21, "clean"))
-    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        rig, meta, sigs = _leaky_preisach(tmp)
         first = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
         search = first.fit_report_["hysteresis"]["drift"]["search"]
         assert not search["reused"] and len(search["g_folds"]) == 3 and len(search["inputs_sha256"]) == 64
@@ -205,10 +211,8 @@ def test_a_leakage_search_of_the_other_gauge_is_reused_only_when_asked_and_finds
     (``leakage_search_any_gauge``): the targets differ by a term linear in the charge, which the search's reference
     model absorbs, so a fresh on-site search finds the same conductance up to rounding; without the flag the other
     gauge's search is not taken."""
-    sc = _short(draw_device("preisach", 21, "clean"))
-    sc["effects"].update({"leakage": 3.0, "preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        _, rig, meta, sigs = _dataset(sc, tmp)
+        rig, meta, sigs = _leaky_preisach(tmp)
         thesis = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
         search = thesis.fit_report_["hysteresis"]["drift"]["search"]
         onsite = SensingConfig(h_mode="onsite")
@@ -268,7 +272,7 @@ def test_leakage_measured_by_the_holds_is_not_rechecked_by_the_selected_form():
     sc = draw_device("bouc_wen", 4, "drift")
     sc["trials"] = [t for t in sc["trials"] if t["trial"] != "cal_free_mixed"]
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
     drift = est.fit_report_["hysteresis"]["drift"]
     assert est.hysteresis_.kind == "duhem"
@@ -286,7 +290,7 @@ def test_leakage_is_checked_with_a_selected_form_outside_the_search_reference():
     sc = draw_device("jiles_atherton", 3, "drift")
     sc["trials"] = [t for t in sc["trials"] if t["trial"] != "cal_free_mixed"]
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
         off = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"leakage": "off"})
         off.fit_hysteresis(sigs, meta)
@@ -312,7 +316,7 @@ def test_rest_segments_recover_an_injected_offset_drift():
     sc = _short(draw_device("preisach", 21, "clean"))
     sc["effects"].update({"offset_drift": 10.0, "preload": 0.0})
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
         t = "val_disp_large_mixed"
         df = sigs[t]
@@ -370,7 +374,7 @@ def test_the_holds_bound_a_calibration_leakage_that_takes_up_more_than_leakage()
     sc["trials"] = [t for t in sc["trials"] if t["trial"] != "cal_free_mixed"]
     g_true = sc["effects"]["leakage"] * 1e-9
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit_hysteresis(sigs, meta)
     drift = est.fit_report_["hysteresis"]["drift"]
     assert drift["leakage_calibration_contradicted"], drift
@@ -407,7 +411,7 @@ def test_the_estimator_applies_leakage_that_the_calibration_rows_and_the_holds_a
     sc = draw_device("jiles_atherton", 301, "drift")
     sc["trials"] = [t for t in sc["trials"] if t["trial"] != "cal_free_mixed"]
     with tempfile.TemporaryDirectory() as tmp:
-        ds, rig, meta, sigs = _dataset(sc, tmp)
+        _ds, rig, meta, sigs = _dataset(sc, tmp)
         est = SelfSensingEstimator(config=SensingConfig(h_model="pi"), rig=rig).fit_hysteresis(sigs, meta)
     drift = est.fit_report_["hysteresis"]["drift"]
     g_cal, g_holds = drift["leakage_s_calibration"], drift["leakage_s_holds_measured"]
