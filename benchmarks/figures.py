@@ -37,6 +37,7 @@ DATES = {
     "whole_device_duhem_linear": "2026-11-26",
     "whole_device_relay_fix": "2026-11-27",
     "whole_device_adc18": "2026-11-27",
+    "error_causes_fresh42": "2026-12-02",
     "whole_device_charge_resolution": "2026-11-27",
     "hold_rows": "2026-11-26",
     "gap_stages": "2026-11-24",
@@ -111,6 +112,10 @@ COMMANDS = {
     "whole_device_quantiser_bound": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
                                     "--configfile benchmarks/cross_device/whole_device/thesis_quantiser_bound/config.yaml "
                                     "--out benchmarks/cross_device/whole_device/thesis_quantiser_bound",
+    "error_causes_fresh42": "python benchmarks/error_causes.py benchmarks/cross_device/whole_device/fold_starts_fresh42 "
+                            "--out benchmarks/cross_device/whole_device/fold_starts_fresh42/error_causes.md (records: "
+                            "selfsense devices bench --n 2 --first-seed 42 --jobs 1 --protocol thesis --randomise "
+                            "device --out benchmarks/cross_device/whole_device/fold_starts_fresh42)",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
@@ -502,6 +507,28 @@ def cross_device_figures() -> list[Fig]:
                if (ROOT / WHOLE_ADC18 / "cross_device.csv").exists() else []))
 
 
+ERROR_CAUSES = "benchmarks/cross_device/whole_device/fold_starts_fresh42/error_causes.md"
+
+
+def error_cause_figures() -> list[Fig]:
+    """How well the calibration's own measures (the H(q) error cost, docs/method.md 6g, and the charge resolution,
+    1b) rank the devices' Table 3 on fresh whole-device seeds: a diagnosis of the misses, not a score."""
+    if not (ROOT / ERROR_CAUSES).exists():
+        return []
+    text = (ROOT / ERROR_CAUSES).read_text()
+    rho = {}
+    for meas in ("displacement", "force"):
+        m = re.search(rf"^\| {meas} \| the larger of the two \| ([-0-9.]+) \| ([0-9.e+-]+) \|", text, re.M)
+        rho[meas] = (m.group(1), m.group(2))
+    n = re.search(r"^(\d+) devices\.", text, re.M).group(1)
+    return [Fig(f"whole-device randomisation, thesis calibration, fresh seeds 42-43 ({n} devices, five families, both "
+                f"presets): Spearman rank correlation of Table 3 with the larger of two calibration-time measures, the "
+                f"H(q) error through A2 / B22 and the charge resolution (displacement; force)",
+                f"{rho['displacement'][0]} (p {float(rho['displacement'][1]):.0e}); {rho['force'][0]} "
+                f"(p {float(rho['force'][1]):.0e})", "", "measured", ERROR_CAUSES,
+                COMMANDS["error_causes_fresh42"], DATES["error_causes_fresh42"])]
+
+
 def hold_rows_figures() -> list[Fig]:
     """The hold rows of the H(q) fit against none, same devices and data (benchmarks/hold_rows.py)."""
     src = "benchmarks/hold_rows/records.jsonl"
@@ -869,7 +896,7 @@ def realtime_figures() -> list[Fig]:
 def collect() -> dict[str, list[Fig]]:
     res = results_figures()
     return {"speed": res["speed"], "bundled": res["bundled"], "realtime": realtime_figures(),
-            "cross_device": cross_device_figures(),
+            "cross_device": cross_device_figures() + error_cause_figures(),
             "stage_chain": stage_chain_figures() + hold_rows_figures(), "gap": gap_figures(),
             "external": external_figures()}
 
