@@ -38,6 +38,7 @@ DATES = {
     "whole_device_relay_fix": "2026-11-27",
     "whole_device_adc18": "2026-11-27",
     "error_causes_fresh42": "2026-12-02",
+    "error_causes_seeds0": "2026-12-02",
     "whole_device_charge_resolution": "2026-11-27",
     "hold_rows": "2026-11-26",
     "gap_stages": "2026-11-24",
@@ -116,6 +117,10 @@ COMMANDS = {
                             "--out benchmarks/cross_device/whole_device/fold_starts_fresh42/error_causes.md (records: "
                             "selfsense devices bench --n 2 --first-seed 42 --jobs 1 --protocol thesis --randomise "
                             "device --out benchmarks/cross_device/whole_device/fold_starts_fresh42)",
+    "error_causes_seeds0": "python benchmarks/error_causes.py benchmarks/cross_device/whole_device/current_seeds0 "
+                           "--out benchmarks/cross_device/whole_device/current_seeds0/error_causes.md (records: "
+                           "selfsense devices bench --n 2 --jobs 2 --protocol thesis --randomise device --out "
+                           "benchmarks/cross_device/whole_device/current_seeds0)",
     "whole_device_adc18": "selfsense devices bench --n 5 --jobs 2 --protocol thesis --randomise device "
                           "--set adc_bits=18 --out benchmarks/cross_device/whole_device/thesis_adc18",
     "whole_device_hold_rows": "selfsense devices bench --n 10 --jobs 2 --protocol thesis --randomise device "
@@ -507,26 +512,33 @@ def cross_device_figures() -> list[Fig]:
                if (ROOT / WHOLE_ADC18 / "cross_device.csv").exists() else []))
 
 
-ERROR_CAUSES = "benchmarks/cross_device/whole_device/fold_starts_fresh42/error_causes.md"
+ERROR_CAUSES = {"fresh seeds 42-43 (first contact of the measure)":
+                ("benchmarks/cross_device/whole_device/fold_starts_fresh42/error_causes.md", "error_causes_fresh42"),
+                "seeds 0-1 (current code)":
+                ("benchmarks/cross_device/whole_device/current_seeds0/error_causes.md", "error_causes_seeds0")}
 
 
 def error_cause_figures() -> list[Fig]:
     """How well the calibration's own measures (the H(q) error cost, docs/method.md 6g, and the charge resolution,
-    1b) rank the devices' Table 3 on fresh whole-device seeds: a diagnosis of the misses, not a score."""
-    if not (ROOT / ERROR_CAUSES).exists():
-        return []
-    text = (ROOT / ERROR_CAUSES).read_text()
-    rho = {}
-    for meas in ("displacement", "force"):
-        m = re.search(rf"^\| {meas} \| the larger of the two \| ([-0-9.]+) \| ([0-9.e+-]+) \|", text, re.M)
-        rho[meas] = (m.group(1), m.group(2))
-    n = re.search(r"^(\d+) devices\.", text, re.M).group(1)
-    return [Fig(f"whole-device randomisation, thesis calibration, fresh seeds 42-43 ({n} devices, five families, both "
-                f"presets): Spearman rank correlation of Table 3 with the larger of two calibration-time measures, the "
-                f"H(q) error through A2 / B22 and the charge resolution (displacement; force)",
-                f"{rho['displacement'][0]} (p {float(rho['displacement'][1]):.0e}); {rho['force'][0]} "
-                f"(p {float(rho['force'][1]):.0e})", "", "measured", ERROR_CAUSES,
-                COMMANDS["error_causes_fresh42"], DATES["error_causes_fresh42"])]
+    1b) rank the devices' Table 3 on the whole device: a diagnosis of the misses, not a score."""
+    out = []
+    for what, (src, key) in ERROR_CAUSES.items():
+        if not (ROOT / src).exists():
+            continue
+        text = (ROOT / src).read_text()
+        n = re.search(r"^(\d+) devices\.", text, re.M).group(1)
+        cells = []
+        for meas in ("H(q) error through A2 / B22", "the larger of the two"):
+            rho = []
+            for m in ("displacement", "force"):
+                g = re.search(rf"^\| {m} \| {re.escape(meas)} \| ([-0-9.]+) \| ([0-9.e+-]+) \|", text, re.M)
+                rho.append(f"{g.group(1)} (p {float(g.group(2)):.0e})")
+            cells.append(" / ".join(rho))
+        out.append(Fig(f"whole-device randomisation, thesis calibration, {what}, {n} devices: Spearman rank correlation "
+                       f"of Table 3 (displacement / force) with the calibration-time H(q) error through A2 / B22; with "
+                       f"the larger of it and the charge resolution",
+                       f"{cells[0]}; {cells[1]}", "", "measured", src, COMMANDS[key], DATES[key]))
+    return out
 
 
 def hold_rows_figures() -> list[Fig]:
