@@ -1732,8 +1732,9 @@ class SelfSensingEstimator:
         force by ``B22 e``. ``e`` is the selected H(q) model's blocked-CV RMS on the calibration trials (out of
         sample; the in-sample RMS where the form was held without CV). Reported in % of the calibration references'
         ranges (the scale of Table 3): where it is large, the load moves V_p little against what H(q) misses (a weakly
-        coupled device), and the tip estimates cannot be better than this on drives like the calibration's; drives
-        the calibration never saw (holds, minor loops) add the H(q) model's extrapolation error."""
+        coupled device), and the tip estimates are unlikely to be better than this on drives like the calibration's;
+        drives the calibration never saw (holds, minor loops) add the H(q) model's extrapolation error. Not a bound:
+        where H(q)'s error is systematic, the regression of the sensing coefficients takes part of it up."""
         rep = self.fit_report_.get("hysteresis", {})
         row = next((r for r in rep.get("selection", []) if r.get("selected")), None)
         cv = float(row["cv_rms_mean_v"]) if row is not None and row.get("cv_rms_mean_v") is not None else float("nan")
@@ -1741,8 +1742,7 @@ class SelfSensingEstimator:
         if not np.isfinite(e):   # (JSON artefacts hold no NaN)
             return {"h_error_v": None, "source": None, "dx_pct": None, "f_pct": None,
                     "note": "no H(q) error on record: not assessed"}
-        spans = {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
-                 "f": float(np.ptp(self.ranges_.get("f", [0.0, 0.0])))}
+        spans = self._calibration_spans()
         pct = {}
         for key, coef, span in (("dx_pct", "A2", spans["dx"]), ("f_pct", "B22", spans["f"])):
             c = abs(float(self.coef_.get(coef, 0.0)))
@@ -1751,6 +1751,12 @@ class SelfSensingEstimator:
                 f"moves the tip estimates by {pct['dx_pct']:.3g} % of the displacement range and {pct['f_pct']:.3g} % "
                 f"of the force range on drives like the calibration's (compare Table 3)")
         return {"h_error_v": e, "source": source, **pct, "note": note}
+
+    def _calibration_spans(self) -> dict:
+        """The calibration references' ranges ``{"dx": [m], "f": [N]}`` (from :attr:`ranges_`): the scale of Table 3
+        for the costs the fit report states in % of range."""
+        return {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
+                "f": float(np.ptp(self.ranges_.get("f", [0.0, 0.0])))}
 
     def _shunt_resistance(self) -> float | None:
         """The rig's shunt resistance [ohm], or None where the rig gives none (the charge resolution is then not
@@ -1774,8 +1780,7 @@ class SelfSensingEstimator:
         if R is None:
             return {"trials": {}, "limited": False, "validation_dx_pct": 0.0, "validation_f_pct": 0.0,
                     "calibration_h_target_v": 0.0, "note": "the rig gives no shunt resistance: not assessed"}
-        spans = {"dx": float(np.ptp(self.ranges_.get("dx", [0.0, 0.0]))),
-                 "f": float(np.ptp(self.ranges_.get("f", [0.0, 0.0])))}
+        spans = self._calibration_spans()
         per = {}
         for tid in meta.index:
             if tid not in trials:

@@ -219,8 +219,8 @@ class DuhemH:
                 return J
             return resid_jac(c, True)[1]
 
-        # two starts (the equation-error estimate and g = 0, a flat state): the output-error objective has local
-        # minima; the lower one is kept
+        # two starts (the equation-error estimate and g = 0, a flat state), and a third where earlier fits of the
+        # same form are given (``starts``): the output-error objective has local minima; the lowest one is kept
         first = [c0, np.zeros(nb)]
         given = [np.asarray(c, dtype=float) for c in (starts or ()) if np.shape(c) == (nb,) and np.isfinite(c).all()]
         if given:   # the earlier fit whose parameters fit these rows best, without a search
