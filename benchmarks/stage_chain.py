@@ -78,8 +78,8 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
             "h_selected": str(est.fit_report_["hysteresis"].get("selected", "")),
             "h_fit_rms_v": float(est.fit_report_["hysteresis"].get("rms_v", float("nan"))),
-            "h_error_dx_pct": float(est.fit_report_.get("h_error_cost", {}).get("dx_pct") or float("nan")),
-            "h_error_f_pct": float(est.fit_report_.get("h_error_cost", {}).get("f_pct") or float("nan")),
+            "h_error_dx_pct": _number(est.fit_report_.get("h_error_cost", {}).get("dx_pct")),
+            "h_error_f_pct": _number(est.fit_report_.get("h_error_cost", {}).get("f_pct")),
             "leakage_calibration_contradicted": bool(d.get("leakage_calibration_contradicted", False)),
             "selected_form_check": {k: d["selected_form_check"][k] for k in ("form", "kept")}
             if d.get("selected_form_check") else None,
@@ -87,6 +87,11 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "selected_form_decision": {k: d["selected_form_decision"].get(k) for k in
                                        ("leakage_s", "cv_rms_v_without", "cv_rms_v_with", "form_with", "adopted")}
             if d.get("selected_form_decision") else None}
+
+
+def _number(v) -> float:
+    """A fit-report number for a record: None (not assessed) as NaN, 0.0 kept."""
+    return float("nan") if v is None else float(v)
 
 
 def summary_devices(recs: list[dict]) -> str:

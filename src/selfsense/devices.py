@@ -123,6 +123,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     mixed = pt[(pt["role"] == "validation") & (pt["signal"] == "mixed")]
     mixed_pct = {m: float(g["percent_of_range"].mean()) for m, g in mixed.groupby("measurement")}
     hrep = est.fit_report_.get("hysteresis", {})
+    hcost = est.fit_report_.get("h_error_cost", {})
     rec.update({
         "status": "ok",
         "displacement_pct": float(t3.loc["displacement", "percent_of_range"]),
@@ -136,9 +137,9 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "charge_resolution_dx_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_dx_pct", 0.0)),
         "charge_resolution_f_pct": float(est.fit_report_.get("charge_resolution", {}).get("validation_f_pct", 0.0)),
         "charge_resolution_h_v": float(est.fit_report_.get("charge_resolution", {}).get("calibration_h_target_v", 0.0)),
-        "h_error_v": float(est.fit_report_.get("h_error_cost", {}).get("h_error_v") or float("nan")),
-        "h_error_dx_pct": float(est.fit_report_.get("h_error_cost", {}).get("dx_pct") or float("nan")),
-        "h_error_f_pct": float(est.fit_report_.get("h_error_cost", {}).get("f_pct") or float("nan")),
+        "h_error_v": _number(hcost.get("h_error_v")),
+        "h_error_dx_pct": _number(hcost.get("dx_pct")),
+        "h_error_f_pct": _number(hcost.get("f_pct")),
         "offset_drift": bool(est.offset_drift_),
         "leakage_ns": float(est.leakage_s_) * 1e9,
         "quantiser": bool((est.quantiser_ or {}).get("applied", False)),
@@ -148,6 +149,11 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "warnings": list(est.fit_report_.get("warnings", [])),
     })
     return rec
+
+
+def _number(v) -> float:
+    """A fit-report number for a record: None (not assessed) as NaN, 0.0 kept."""
+    return float("nan") if v is None else float(v)
 
 
 def aggregate(records: Iterable[Mapping[str, Any]]) -> pd.DataFrame:

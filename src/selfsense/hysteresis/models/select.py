@@ -252,6 +252,12 @@ def _fold_rms(model, r_cal, holds, dt, n_cal: int, n_folds: int, fold: int) -> f
     return _combined_rms(r_cal, rh[hf[fold]] if hf.size else rh[:0], w2)
 
 
+def _takes_fold_starts(model) -> bool:
+    """A model fitted by a non-convex search on masked rows (``duhem``): its final fit on all rows also starts from
+    its blocked-CV fold fits (:func:`_final_fit`), in the selection and where the form is held alike."""
+    return bool(getattr(model, "joint_extra", False)) and not getattr(model, "convex", True)
+
+
 def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, starts_out: list | None = None):
     """CV of a model that is not linear in its parameters but fits extra columns jointly and accepts a row mask
     (``duhem``): fitted on the training rows of every segment (its state runs over every sample), scored on every
@@ -295,7 +301,7 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
             rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds, rows_out=rows_out)
         elif getattr(model, "joint_extra", False):
             rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds,
-                             starts_out=starts_out if not getattr(model, "convex", True) else None)
+                             starts_out=starts_out if _takes_fold_starts(model) else None)
         elif k == 1:
             rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin, holds)
         else:
@@ -471,7 +477,7 @@ def _fit_held(qs, ys, dt: float, extras, free, candidates, holds, n_blocks: int 
     holds = holds if holds else None
     model = make_model(held["kind"], **held["params"])
     starts = None
-    if getattr(model, "joint_extra", False) and not getattr(model, "convex", True):
+    if _takes_fold_starts(model):
         starts = []
         _cv_masked(model, qs, ys, dt, extras, n_blocks, ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds),
                    thin * fit_stride(lengths), holds, starts_out=starts)
