@@ -124,3 +124,56 @@ def test_tip_shrink_of_a_carried_member_is_scored_from_its_own_base():
     # a record written before the base was recorded is scored as it was (Table 3 minus the twin)
     old = rec(2, "slow.leakage", 0.0, 5.4, None, 5.0)
     assert blind.score_tip([old])["median_tip_shrink_error"] == pytest.approx(1.0)   # |0 - 0.4| / 0.4
+
+
+def _tip_joint():
+    import importlib
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        return importlib.import_module("tip_joint")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_joint_tier_draws_distinct_library_effects_deterministically():
+    """The joint tip tier (benchmarks/tip_joint.py) draws 2-3 distinct library effects per case, the families in turn,
+    the same for the same seed and case, and its device seeds never meet the single-effect tier's."""
+    tj = _tip_joint()
+    from selfsense.gap.blindsim import SIM_EFFECTS
+
+    lib = {v[0] for v in SIM_EFFECTS.values() if not v[0].startswith("open.")}
+    cases = [tj.draw_joint_case(i, 5) for i in range(40)]
+    assert cases == [tj.draw_joint_case(i, 5) for i in range(40)]
+    for i, c in enumerate(cases):
+        assert 2 <= len(c["effects"]) <= 3 and set(c["effects"]) <= lib
+        assert all(1.0 <= m <= 30.0 for m in c["effects"].values())
+        assert c["family"] == blind.FAMILIES[i % len(blind.FAMILIES)]
+    assert {len(c["effects"]) for c in cases} == {2, 3}
+    single = {blind.draw_tip_case(i, 5)["device_seed"] for i in range(40)}
+    assert not single & {c["device_seed"] for c in cases}
+
+
+def test_joint_tier_scores_the_all_together_prediction_against_the_twin():
+    """Scored from the prediction's base: error |p - t| / |t|, the interval hit, runaways (error > 1); a case whose
+    true joint shrink is within 3 noise floors of 0 is not scored; named effects not drawn are counted."""
+    tj = _tip_joint()
+
+    def rec(i, drawn, named, pred, lo, hi, base, twin, noise=0.1):
+        return {"case": i, "family": "gpi", "manifest": {"effects": {e: 1.0 for e in drawn}}, "effects": named,
+                "shrink_all": pred, "shrink_all_interval_90": [lo, hi], "base_all": base, "error_without": twin,
+                "error_noise": twin + noise, "true_all_from_base": base - twin, "true_shrink": base - twin}
+
+    recs = [rec(0, ["slow.leakage", "slow.creep"], ["slow.leakage"], 4.0, 3.0, 5.0, 10.0, 5.0),     # t 5: in
+            rec(1, ["slow.leakage", "slow.temperature"], ["slow.temperature", "rate.amplifier"], -2.0, -3.0, -1.0,
+                8.0, 4.0),                                                                            # t 4: runaway
+            rec(2, ["hysteresis.preload", "load.contact"], [], 0.0, 0.0, 0.0, 3.0, 2.95)]              # t 0.05: not
+    s = tj.score(recs)
+    floor = np.sqrt(np.mean(np.square([0.1, 0.1, 0.1])) / 2.0)
+    assert s["tip_noise_floor"] == pytest.approx(floor)
+    assert s["n_scored"] == 2 and [x["scored"] for x in s["rows"]] == [True, True, False]
+    assert s["median_error"] == pytest.approx(np.median([1.0 / 5.0, 6.0 / 4.0]))
+    assert s["coverage"] == pytest.approx(0.5) and s["runaways"] == 1
+    assert (s["drawn_named"], s["n_drawn"], s["false_named"]) == (2, 6, 1)
+    assert "| 1 | gpi | slow.leakage, slow.temperature |" in tj.markdown(s, "cmd", None)

@@ -314,20 +314,25 @@ def draw_tip_case(i: int, seed: int) -> dict:
             "noise_seed": int(seed) * 7_919 + int(i) + 50_000, "effects": {e: mag}}
 
 
-def run_tip_case(i: int, seed: int, thresholds: dict | None = None) -> dict:
+def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict | None = None,
+                 max_effects: int = 1) -> dict:
     """Tip tier: the project's default estimator (``SensingConfig()``, fitted as the pipeline fits it) and the
-    diagnosis of its gap, against the re-simulation without the effect (the effect-free twin).
+    diagnosis of its gap, against the re-simulation without the effect (the effect-free twin). ``case``: the case
+    to run instead of :func:`draw_tip_case`'s (same keys; several effects make a joint case, whose twin is without
+    all of them); ``max_effects``: the named effects the counterfactual corrects (1: the top one).
 
     The predicted shrink of the named effect is the diagnostic's (:func:`counterfactual` with the fitted estimator,
     whose selected H(q) form every recalibration holds, as in the pipeline). Its truth is measured from the same
     base: Table 3 of the chain without the effect's model (``base``: the fitted estimator, or the chain recalibrated
     with the member off where the estimator already carries it) minus the twin's Table 3. ``true_shrink`` stays the
-    effect's cost to the user (Table 3 minus the twin's)."""
+    effect's cost to the user (Table 3 minus the twin's). "All together" (``shrink_all``: the named effects corrected
+    at once, from ``base_all``, the chain with every carried confirmed member off) is scored against the twin from
+    the same base (``true_all_from_base``)."""
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
     from .counterfactual import _summary, counterfactual, tip_table
 
-    c = draw_tip_case(i, seed)
+    c = draw_tip_case(i, seed) if case is None else case
     thr = load_stage_thresholds() if thresholds is None else thresholds
     mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
     fam, ds, ns, eff = c["family"], c["device_seed"], c["noise_seed"], c["effects"]
@@ -335,19 +340,23 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None) -> dict:
     tr, me, rig = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE)
     d = diagnose_stages(tr, me, rig, thr)
     fitted = mk(rig).fit(tr, me)
-    cf = counterfactual(tr, me, rig, d, mk, n_boot=100, seed=int(i), max_effects=1, fitted=fitted)  # the top effect
+    cf = counterfactual(tr, me, rig, d, mk, n_boot=100, seed=int(i), max_effects=max_effects, fitted=fitted)
     tr0, me0, rig0 = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE)
     trn, men, rign = simulate_family_case(fam, ds, {}, ns + 104_729, T_CASE, FS_CASE)
     e_without = _summary(tip_table(tr0, me0, rig0, mk))["mean"]
     e_noise = _summary(tip_table(trn, men, rign, mk))["mean"]
     base = {k: v["base"]["mean"] for k, v in cf["effects"].items()}
+    base_all = cf["base"]["mean"] if "base" in cf else cf["before"]["mean"]
     return {"case": int(i), "seed": int(seed), "family": fam, "manifest": c, "top": d["top"],
             "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
             "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
             "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
             "base": base, "true_shrink_from_base": {k: b - e_without for k, b in base.items()},
             "error_without": e_without, "error_noise": e_noise,
-            "true_shrink": cf["before"]["mean"] - e_without, "seconds": time.perf_counter() - t0}
+            "true_shrink": cf["before"]["mean"] - e_without, "base_all": base_all,
+            "shrink_all": cf.get("shrink_all", 0.0),
+            "shrink_all_interval_90": cf.get("shrink_all_interval_90", [0.0, 0.0]),
+            "true_all_from_base": base_all - e_without, "seconds": time.perf_counter() - t0}
 
 
 def _truth(r: dict, e: str) -> float:
