@@ -159,10 +159,42 @@ def test_shapley_shares_of_named_effects_sum_to_the_joint_shrink(thr):
     assert {"slow.absorption", "slow.leakage"} <= set(names) and 2 <= len(names) <= 3
     cf = counterfactual(tr, me, rig, v, lambda r: FastSensingEstimator(rig=r), n_boot=20, seed=0)
     sh = cf["shapley"]
-    assert set(sh) == set(names)
+    assert set(sh) == set(names) == set(cf["joint_effects"])
     assert all(abs(x) > 0.05 for x in sh.values()), sh
     assert sum(sh.values()) == pytest.approx(cf["shrink_all"], abs=1e-9)
     assert cf["shrink_all"] > 0.5   # measured 2.17 points of range
+
+
+def test_an_effect_whose_model_alone_makes_table3_worse_is_left_out_of_all_together(thr):
+    """The joint game ("all together", Shapley) takes only the named effects whose model, added alone, does not make
+    Table 3 worse. Here one effect's stage-fitted correction is turned against the data (coefficients x -5): its own
+    shrink turns negative, it is listed in ``joint_left_out``, all together equals the other effects' game, and the
+    Shapley shares (over the joint game only) still sum to it. Unchanged effects keep their numbers."""
+    import copy
+
+    from selfsense.gap.blindsim import simulate_family_case
+    from selfsense.gap.counterfactual import counterfactual
+    from selfsense.gap.standin import FastSensingEstimator
+
+    tr, me, rig = simulate_family_case("gpi", 3, {"slow.absorption": 10.0, "slow.leakage": 10.0}, 3)
+    v = S.diagnose_stages(tr, me, rig, thr)
+    mk = lambda r: FastSensingEstimator(rig=r)  # noqa: E731
+    cf = counterfactual(tr, me, rig, v, mk, n_boot=20, seed=0)
+    assert cf["joint_effects"] == [e["effect"] for e in v["effects"]] and not cf["joint_left_out"]
+    bad = "slow.leakage"
+    v2 = copy.deepcopy(v)
+    for st in v2["stages"].values():
+        for a in st.get("accepted", []):
+            if a["effect"] == bad:
+                a["coef"] = [-5.0 * c for c in a["coef"]]
+    cf2 = counterfactual(tr, me, rig, v2, mk, n_boot=20, seed=0)
+    assert cf2["effects"][bad]["shrink"] < 0
+    assert bad not in cf2["joint_effects"] and bad in cf2["joint_left_out"]
+    assert set(cf2["shapley"]) == set(cf2["joint_effects"]) == set(cf["joint_effects"]) - {bad}
+    assert sum(cf2["shapley"].values()) == pytest.approx(cf2["shrink_all"], abs=1e-9)
+    for n in cf2["joint_effects"]:
+        assert cf2["effects"][n]["shrink"] == pytest.approx(cf["effects"][n]["shrink"], abs=1e-12)
+    assert cf2["shrink_all"] > cf2["effects"][bad]["shrink"]
 
 
 def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
