@@ -50,6 +50,9 @@ DATES = {
     "gap_tip_27182": "2026-11-26",
     "gap_tip_14142": "2026-11-26",
     "gap_tip_20261202": "2026-12-02",
+    "gap_joint_20261203": "2026-12-02",
+    "gap_joint_20261203_rule": "2026-12-02",
+    "gap_joint_20261204": "2026-12-02",
     "stage_chain": "2026-11-26",
     "stage_chain_duhem_linear": "2026-11-26",
     "stage_chain_relay_bound": "2026-11-27",
@@ -146,6 +149,13 @@ COMMANDS = {
     "gap_tip_14142": "selfsense gap blind --tip --n 240 --seed 14142 --jobs 2 --out benchmarks/gap_tip/seed_14142",
     # the stage diagnosis with the Preisach stand-in H (its first tip tier)
     "gap_tip_20261202": "selfsense gap blind --tip --n 80 --seed 20261202 --jobs 2 --out benchmarks/gap_tip/seed_20261202",
+    # the joint tip tier (cases with 2-3 effects, the all-together prediction against the twin without them)
+    "gap_joint_20261203": "python benchmarks/tip_joint.py --seed 20261203 --n 40 --jobs 1 --out "
+                          "benchmarks/gap_tip/joint_20261203",
+    "gap_joint_20261203_rule": "python benchmarks/tip_joint.py --seed 20261203 --n 40 --jobs 1 --out "
+                               "benchmarks/gap_tip/joint_20261203_rule",
+    "gap_joint_20261204": "python benchmarks/tip_joint.py --seed 20261204 --n 40 --jobs 1 --out "
+                          "benchmarks/gap_tip/joint_20261204",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
     "stage_chain_duhem_linear": "python benchmarks/stage_chain.py devices --families {families} --seeds 0-5 --hold-s 0 "
                                 "--out benchmarks/stage_chain/thesis_duhem_linear",
@@ -742,6 +752,28 @@ def gap_figures() -> list[Fig]:
                          "interval", f"{r['named']} of {r['costly']}; {h['scored']}: "
                          + ("-" if not h["scored"] else f"{h['median_error']:.2f}, {h['inside']} of {h['scored']}"),
                          ">= 90 %; <= 0.35", _met(ok_named and ok_how)))
+    from tip_joint import score as joint_score
+
+    for folder, key, what in [
+        ("benchmarks/gap_tip/joint_20261203", "gap_joint_20261203",
+         "first contact, before the joint game's rule (all named effects joined)"),
+        ("benchmarks/gap_tip/joint_20261203_rule", "gap_joint_20261203_rule",
+         "the same cases again with the rule (an effect whose model alone makes Table 3 worse is left out of all "
+         "together), made for them"),
+        ("benchmarks/gap_tip/joint_20261204", "gap_joint_20261204",
+         "a seed never used, scored once with the rule (first contact)"),
+    ]:
+        jsrc = f"{folder}/joint_cases.jsonl.gz"
+        if not (ROOT / jsrc).exists():
+            continue
+        js = joint_score([json.loads(x) for x in gzip.open(ROOT / jsrc, "rt")])
+        seed = COMMANDS[key].split("--seed ")[1].split()[0]
+        out.append(Fig(f"gap diagnostic, joint tip tier, seed {seed} ({js['n']} cases with 2-3 effects; {what}): "
+                       f"median relative error of the all-together shrink ({js['n_scored']} cases with a real joint "
+                       "tip consequence); true joint shrink inside its 90 % interval; runaways (error > 1)",
+                       f"{js['median_error']:.2f}; {js['coverage']:.2f}; {js['runaways']}", "<= 0.25; >= 0.80",
+                       _met(js["median_error"] <= 0.25 and js["coverage"] >= 0.8), jsrc, COMMANDS[key],
+                       DATES[key]))
     recs = [json.loads(x) for x in gzip.open(ROOT / "benchmarks/gap_tip/tip_cases.jsonl.gz", "rt")]
     bsrc = "benchmarks/gap_tip/amplifier_blind.jsonl.gz"
     if (ROOT / bsrc).exists():
