@@ -194,6 +194,36 @@ def test_the_local_launcher_hides_only_the_slurm_plugins():
     assert "slurm" not in names and "cluster-generic" in names
 
 
+def test_the_local_launcher_does_not_wait_for_the_schedulers_timer(monkeypatch):
+    """A timer that Snakemake's job scheduler leaves waiting (it wakes the finished scheduler once more) is cancelled
+    when Snakemake returns, also through sys.exit: the process ends with the workflow, and the timer's action never
+    runs. Other threads are left alone."""
+    import threading
+
+    import snakemake.cli
+
+    from selfsense.cli import _local_snakemake
+
+    fired, release = [], threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+
+    def fake_snakemake(argv):
+        threading.Timer(600, lambda: fired.append(True)).start()
+        sys.exit(0)
+
+    monkeypatch.setattr(snakemake.cli, "main", fake_snakemake)
+    with pytest.raises(SystemExit):
+        _local_snakemake.main(["--cores", "1"])
+    timers = [t for t in threading.enumerate() if isinstance(t, threading.Timer)]
+    for t in timers:
+        t.join(timeout=60)
+    assert not any(t.is_alive() for t in timers) and not fired
+    assert other.is_alive()
+    release.set()
+    other.join()
+
+
 def test_workflow_ships_with_the_package():
     d = pipeline_cli.workflow_dir()
     for rel in ("Snakefile", "config.yaml", "workflow/rules/pipeline.smk", "workflow/schemas/config.schema.yaml",
