@@ -3,6 +3,7 @@ diagnostic on the pipeline's signals and fitted model, drafted for the rule gap_
 Table 3 and writes the gap folder); its phase lines go to the rule's log."""
 from selfsense import stages
 from selfsense.gap.pipeline import diagnose_pipeline, write_draft
+from selfsense.process import end_now
 
 with stages.logged(snakemake.log[0]):  # noqa: F821
     signals = stages.by_trial(snakemake.input.signals)  # noqa: F821
@@ -10,3 +11,4 @@ with stages.logged(snakemake.log[0]):  # noqa: F821
                           snakemake.params.config, seed=int(snakemake.params.seed),  # noqa: F821
                           workers=snakemake.threads)  # noqa: F821
     write_draft(v, snakemake.output.verdict, snakemake.output.figure)  # noqa: F821
+end_now()  # outputs written and closed: no interpreter teardown for Snakemake to wait for

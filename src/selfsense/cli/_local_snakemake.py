@@ -8,8 +8,8 @@ the development machine). ``selfsense run`` starts Snakemake through this module
 profile is given (:func:`selfsense.cli.run.runs_locally`), so such a run never loads those plugins; any other run
 starts ``python -m snakemake`` unchanged.
 
-It also ends the process when the workflow has ended (:func:`cancel_timers`): Snakemake's job scheduler leaves a
-timer thread behind that the interpreter otherwise waits for, up to a second after the last job.
+Started as a program, it ends its process as soon as Snakemake returns (:func:`selfsense.process.end_now`): no wait
+for the timer thread Snakemake's job scheduler leaves behind (up to a second after the last job) and no teardown.
 
     python -m selfsense.cli._local_snakemake [snakemake options]
 """
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import pkgutil
 import sys
-import threading
 
 #: executor plugins a local run does not load (module-name prefix)
 SKIPPED_PLUGINS = ("snakemake_executor_plugin_slurm",)
@@ -39,26 +38,21 @@ def hide_skipped_plugins() -> None:
     pkgutil.iter_modules = iter_modules
 
 
-def cancel_timers() -> None:
-    """Cancel the ``threading.Timer`` threads still waiting once Snakemake has returned. Its job scheduler starts one
-    at every pass of its loop that waits for running jobs (``--max-jobs-per-timespan``, default 100/1s: look again
-    after the timespan); the last one outlives the workflow, and the interpreter joins it before it exits: 1.0-1.35 s
-    after Snakemake's closing ``Elapsed time`` line on ``tweezer_sim``, on the critical path of every run. Its action
-    only wakes the scheduler that has already finished, so cancelling it changes nothing else."""
-    for t in threading.enumerate():
-        if isinstance(t, threading.Timer):
-            t.cancel()
-
-
 def main(argv: list[str] | None = None) -> int:
+    """Snakemake's command line with ``argv``; its exit status (Snakemake ends with ``sys.exit``)."""
+    from selfsense.process import exit_code
+
     hide_skipped_plugins()
     from snakemake.cli import main as snakemake_main
 
     try:
-        return snakemake_main(sys.argv[1:] if argv is None else argv)
-    finally:   # also when Snakemake ends with sys.exit, as its command line does
-        cancel_timers()
+        snakemake_main(sys.argv[1:] if argv is None else argv)
+    except SystemExit as stop:
+        return exit_code(stop.code)
+    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from selfsense.process import end_now
+
+    end_now(main())
