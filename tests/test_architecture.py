@@ -9,7 +9,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "src" / "selfsense"
 #: rooms from the bottom up; a room may import rooms of a lower rank only (and itself)
-RANK = {"selfsense": 0, "determinism": 0, "parallel": 0, "signals": 1, "io": 2, "hysteresis": 2, "mechanics": 2, "chain": 3,
+RANK = {"selfsense": 0, "determinism": 0, "parallel": 0, "process": 0, "signals": 1, "io": 2, "hysteresis": 2, "mechanics": 2, "chain": 3,
         "sensing": 4, "sim": 4, "report": 5, "stages": 6, "gap": 7, "devices": 8, "cli": 9, "__main__": 10}
 
 

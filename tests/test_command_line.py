@@ -194,6 +194,47 @@ def test_the_local_launcher_hides_only_the_slurm_plugins():
     assert "slurm" not in names and "cluster-generic" in names
 
 
+def test_the_local_launcher_returns_snakemakes_exit_status(monkeypatch):
+    """Snakemake's command line ends with sys.exit; the launcher's main returns that status (the program then ends
+    its process with it, selfsense.process.end_now)."""
+    import snakemake.cli
+
+    from selfsense.cli import _local_snakemake
+
+    seen = []
+
+    def fake_snakemake(argv):
+        seen.append(argv)
+        sys.exit(3)
+
+    monkeypatch.setattr(snakemake.cli, "main", fake_snakemake)
+    assert _local_snakemake.main(["--cores", "1"]) == 3
+    assert seen == [["--cores", "1"]]
+    monkeypatch.setattr(snakemake.cli, "main", lambda argv: sys.exit(None))
+    assert _local_snakemake.main([]) == 0
+
+
+def test_end_now_runs_the_exit_handlers_and_flushes_without_waiting_for_threads(tmp_path):
+    """A process ended by end_now: its exit status, its buffered output and what its exit handlers write are there
+    as after a normal exit; a non-daemon timer thread still waiting (as Snakemake's scheduler leaves one) is not
+    waited for, and its action never runs."""
+    code = (
+        "import atexit, sys, threading\n"
+        "from pathlib import Path\n"
+        "from selfsense.process import end_now\n"
+        f"out = Path({str(tmp_path)!r})\n"
+        "atexit.register(lambda: (out / 'handler').write_text('ran'))\n"
+        "threading.Timer(600, lambda: (out / 'timer').write_text('fired')).start()\n"
+        "sys.stdout.write('buffered, no newline')\n"
+        "end_now(3)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3, proc.stderr[-2000:]
+    assert proc.stdout == "buffered, no newline"
+    assert (tmp_path / "handler").read_text() == "ran"
+    assert not (tmp_path / "timer").exists()
+
+
 def test_workflow_ships_with_the_package():
     d = pipeline_cli.workflow_dir()
     for rel in ("Snakefile", "config.yaml", "workflow/rules/pipeline.smk", "workflow/schemas/config.schema.yaml",

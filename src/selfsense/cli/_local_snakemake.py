@@ -8,6 +8,9 @@ the development machine). ``selfsense run`` starts Snakemake through this module
 profile is given (:func:`selfsense.cli.run.runs_locally`), so such a run never loads those plugins; any other run
 starts ``python -m snakemake`` unchanged.
 
+Started as a program, it ends its process as soon as Snakemake returns (:func:`selfsense.process.end_now`): no wait
+for the timer thread Snakemake's job scheduler leaves behind (up to a second after the last job) and no teardown.
+
     python -m selfsense.cli._local_snakemake [snakemake options]
 """
 from __future__ import annotations
@@ -36,11 +39,20 @@ def hide_skipped_plugins() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Snakemake's command line with ``argv``; its exit status (Snakemake ends with ``sys.exit``)."""
+    from selfsense.process import exit_code
+
     hide_skipped_plugins()
     from snakemake.cli import main as snakemake_main
 
-    return snakemake_main(sys.argv[1:] if argv is None else argv)
+    try:
+        snakemake_main(sys.argv[1:] if argv is None else argv)
+    except SystemExit as stop:
+        return exit_code(stop.code)
+    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from selfsense.process import end_now
+
+    end_now(main())

@@ -21,7 +21,8 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["run_pipeline_diagnosis", "diagnose_dataset", "why_not"]
+__all__ = ["run_pipeline_diagnosis", "diagnose_pipeline", "reconcile", "write_draft", "finish_from_draft",
+           "diagnose_dataset", "why_not"]
 
 
 def why_not(verdict: dict) -> list[dict]:
@@ -216,7 +217,11 @@ def _json_default(o):
     return str(o)
 
 
-def write(v: dict, out: Path, figures: bool = True) -> None:
+def write(v: dict, out: Path, figures: bool = True, drawn: str | Path | None = None) -> None:
+    """The verdict's files into ``out``; ``drawn``: ``stage_gains.png`` as :func:`write_draft` drew it, copied instead
+    of drawn again (the same figure: it reads the member candidates only, not the reconciliation with Table 3)."""
+    import shutil
+
     from selfsense.io import atomic_write_text
 
     out.mkdir(parents=True, exist_ok=True)
@@ -232,7 +237,9 @@ def write(v: dict, out: Path, figures: bool = True) -> None:
                       "effect's correction with its stage-fitted coefficients fixed (recalibrated on the corrected "
                       "calibration trials).\n\n" + "\n".join(md) + "\n")
     atomic_write_text(out / "verdict.json", json.dumps(v, indent=1, sort_keys=True, default=_json_default) + "\n")
-    if figures:
+    if drawn is not None:
+        shutil.copyfile(drawn, out / "stage_gains.png")
+    elif figures:
         _figure(v, out / "stage_gains.png")
 
 
@@ -249,13 +256,12 @@ def _config_record(cfg) -> dict:
     return {k: (list(x) if isinstance(x, tuple) else x) for k, x in vars(cfg).items()}
 
 
-def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
-                           config: Mapping[str, Any], out_dir: str | Path, table3_csv: str | Path | None = None,
-                           seed: int = 0, figures: bool = True, force: bool = True, workers: int = 1) -> dict:
-    """The pipeline's gap rule: pipeline signals + fitted model -> verdict files in ``out_dir``; ``workers``: the
-    rule's threads (recalibrations fitted at a time)."""
+def diagnose_pipeline(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
+                      config: Mapping[str, Any], seed: int = 0, workers: int = 1) -> dict:
+    """The pipeline's gap diagnosis in memory: pipeline signals + fitted model -> the verdict, without its
+    reconciliation with Table 3 (:func:`reconcile`). Its "before" is computed here, as Table 3 is, so nothing of it
+    waits for the score rule; ``workers``: recalibrations fitted at a time."""
     from selfsense import io as sio
-    from selfsense.io import output_dir
     from selfsense.stages import load_estimator
 
     from selfsense.io.budget import GAP_MAX_SAMPLES
@@ -283,11 +289,56 @@ def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, s
         v["decimated"] = decimated
         v["decimation_note"] = ("trials longer than the diagnostic's sample budget were diagnosed on block means of k "
                                 "samples; their 'before' then differs from Table 3 by that averaging")
+    return v
+
+
+def reconcile(v: dict, table3_csv: str | Path | None) -> dict:
+    """``v`` with Table 3 as the score rule wrote it (``table3``) and the difference of the diagnosis' "before" from
+    it (``reconciliation``: CSV rounding, or the decimation of long trials); unchanged without the file."""
     if table3_csv is not None and Path(table3_csv).exists():
         t3 = pd.read_csv(table3_csv).set_index("measurement")["percent_of_range"]
         v["table3"] = {m: float(t3.get(m, np.nan)) for m in ("displacement", "force")}
         v["reconciliation"] = {m: float(v["tip"]["before"].get(m, np.nan) - v["table3"][m])
                                for m in ("displacement", "force")}
+    return v
+
+
+def write_draft(v: dict, verdict_pkl: str | Path, figure_png: str | Path) -> None:
+    """The pipeline rule ``gap_diagnose``'s outputs: the verdict of :func:`diagnose_pipeline` as a pickle (every
+    value as computed, for :func:`finish_from_draft`) and ``stage_gains.png``, drawn here, in the rule's own process,
+    so that the rule that finishes the folder runs in the Snakemake process without matplotlib."""
+    import pickle
+
+    from selfsense.io import atomic_write_bytes
+
+    atomic_write_bytes(verdict_pkl, pickle.dumps(v, protocol=pickle.HIGHEST_PROTOCOL))
+    _figure(v, Path(figure_png))
+
+
+def finish_from_draft(verdict_pkl: str | Path, figure_png: str | Path, table3_csv: str | Path | None,
+                      out_dir: str | Path, dataset_dir: str | Path) -> dict:
+    """The pipeline rule ``gap_reconcile``: the draft of :func:`write_draft` reconciled with Table 3 and written
+    all-or-nothing into ``out_dir``, the files :func:`run_pipeline_diagnosis` writes, byte for byte."""
+    import pickle
+
+    from selfsense.io import output_dir
+
+    v = reconcile(pickle.loads(Path(verdict_pkl).read_bytes()), table3_csv)
+    with output_dir(out_dir, [dataset_dir], force=True) as tmp:
+        write(v, Path(tmp), drawn=figure_png)
+    return v
+
+
+def run_pipeline_diagnosis(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], model_json: str | Path,
+                           config: Mapping[str, Any], out_dir: str | Path, table3_csv: str | Path | None = None,
+                           seed: int = 0, figures: bool = True, force: bool = True, workers: int = 1) -> dict:
+    """Pipeline signals + fitted model -> verdict files in ``out_dir`` in one call (:func:`diagnose_pipeline`,
+    :func:`reconcile`, :func:`write`); the pipeline runs the same as two rules, ``gap_diagnose`` and
+    ``gap_reconcile``. ``workers``: recalibrations fitted at a time."""
+    from selfsense.io import output_dir
+
+    v = reconcile(diagnose_pipeline(dataset_dir, signal_paths, model_json, config, seed=seed, workers=workers),
+                  table3_csv)
     with output_dir(out_dir, [dataset_dir], force=force) as tmp:
         write(v, Path(tmp), figures=figures)
     return v

@@ -448,7 +448,7 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str], config
     if caps_path.exists():
         caps = json.loads(caps_path.read_text())
         parts.append("<h2>Figures</h2>")
-        from .figures import FIGURES
+        from .figure_list import FIGURES
 
         order = {k: i for i, k in enumerate(FIGURES)}
         for stem in sorted(caps, key=lambda k: (order.get(k, len(order)), k)):
