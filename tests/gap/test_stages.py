@@ -341,3 +341,19 @@ def test_tip_table_scores_a_kept_estimate_of_the_same_inputs():
     assert first == plain and second == fresh
     tip_table(trials, meta, None, None, estimator=est, seen=seen, inputs_of=lambda trial: ("slow.leakage",))
     assert Counting.calls == 8   # other input corrections: estimated again
+
+
+def test_the_verdict_message_names_all_together_and_what_it_leaves_out():
+    """The report's verdict paragraph gives the all-together shrink with its interval and the effects of the joint
+    game, and says which named effect was left out of it and why."""
+    from selfsense.gap.pipeline import message
+
+    eff = lambda n, st: {"effect": n, "stage": st, "gain": 0.2, "score": 3.0}  # noqa: E731
+    v = {"effects": [eff("slow.creep", "mechanical"), eff("load.stress_hysteresis", "blocked")], "unexplained": [],
+         "tip": {"effects": {"slow.creep": {"shrink": 0.8, "shrink_interval_90": [0.5, 1.1]},
+                             "load.stress_hysteresis": {"shrink": -0.5, "shrink_interval_90": [-0.7, -0.3]}},
+                 "shrink_all": 0.8, "shrink_all_interval_90": [0.5, 1.1], "joint_effects": ["slow.creep"],
+                 "joint_left_out": {"load.stress_hysteresis": "its model alone makes Table 3 worse (-0.50 points)"}}}
+    m = message(v)
+    assert "All together (slow.creep)" in m and "+0.80 points of range (90 % interval +0.50 to +1.10)" in m
+    assert "load.stress_hysteresis is left out of all together: its model alone makes Table 3 worse (-0.50" in m

@@ -114,6 +114,14 @@ def message(v: dict) -> str:
         if len(v["effects"]) > 1:
             parts.append("Also confirmed: " + ", ".join(f"{x['effect']} ({x['stage']})" for x in v["effects"][1:])
                          + ".")
+            tip = v["tip"]
+            if "shrink_all" in tip:
+                lo, hi = tip["shrink_all_interval_90"]
+                parts.append(f"All together ({', '.join(tip.get('joint_effects', [])) or 'none'}), from the chain "
+                             f"without its carried confirmed members, the tip error changes by {tip['shrink_all']:+.2f} "
+                             f"points of range (90 % interval {lo:+.2f} to {hi:+.2f}).")
+            for n, why in (tip.get("joint_left_out") or {}).items():
+                parts.append(f"{n} is left out of all together: {why}.")
     else:
         parts.append("No library effect beat its null threshold in any stage.")
     ch = v.get("chain") or {}
@@ -148,7 +156,8 @@ def _tables(v: dict) -> dict[str, pd.DataFrame]:
                         "tip_shrink_points": te.get("shrink", np.nan),
                         "tip_shrink_lo90": (te.get("shrink_interval_90") or [np.nan])[0],
                         "tip_shrink_hi90": (te.get("shrink_interval_90") or [np.nan, np.nan])[1],
-                        "shapley_points": (tip.get("shapley") or {}).get(e["effect"], np.nan)})
+                        "shapley_points": (tip.get("shapley") or {}).get(e["effect"], np.nan),
+                        "in_all_together": e["effect"] in tip.get("joint_effects", [])})
     sh_rows = []
     for meas in ("displacement", "force"):
         if meas not in tip["before"]:
