@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import json
+import re
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from datetime import datetime, timezone
@@ -86,7 +87,8 @@ def markdown(s: dict, command: str, seconds: float | None) -> str:
     L = ["# Joint tip tier: how far all named effects together shrink the tip error", "",
          f"Command: `{command}`" + (f" ({seconds:.0f} s)" if seconds else ""), "",
          f"{s['n']} cases with 2-3 effects each (device families in turn), the project's default estimator. Predicted: "
-         "the diagnosis's \"all together\" shrink (every named effect modelled at once: chain members forced on, the "
+         "the diagnosis's \"all together\" shrink (the named effects modelled at once -- since 2026-12-02 those whose "
+         "model alone does not make Table 3 worse, before every named effect: chain members forced on, the "
          "others corrected with their stage-fitted coefficients, the estimator recalibrated), from its base (the "
          "chain with every carried confirmed member off). True: that base minus Table 3 of the twin without any of "
          "the drawn effects (same device, drive and noise).", "",
@@ -125,6 +127,11 @@ def main(argv=None) -> int:
         with gzip.open(a.records, "rt") as fh:
             recs = [json.loads(x) for x in fh]
         seconds = None
+        old = a.out / "joint_scores.md"
+        if old.exists():   # the tables written again: keep the command (and time) of the run that made the records
+            m = re.search(r"^Command: `(.*)`(?: \((\d+) s\))?$", old.read_text(), re.M)
+            if m:
+                command, seconds = m.group(1), (float(m.group(2)) if m.group(2) else None)
     else:
         args = [(i, a.seed) for i in cases]
         if a.jobs > 1:
