@@ -64,13 +64,6 @@ rule gap_reconcile:
     params:
         dataset_dir=dataset_dir,
     run:
-        from selfsense.gap.pipeline import finish_from_draft
+        from selfsense.gap.pipeline import reconcile_job
 
-        with stages.logged(log[0], exit_on_bad_input=False):
-            finish_from_draft(
-                input.verdict,
-                input.figure,
-                input.table3,
-                output.gap,
-                params.dataset_dir,
-            )
+        reconcile_job(input, output, params, log)

@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["run_pipeline_diagnosis", "diagnose_pipeline", "reconcile", "write_draft", "finish_from_draft",
+__all__ = ["run_pipeline_diagnosis", "diagnose_pipeline", "reconcile", "write_draft", "finish_from_draft", "reconcile_job",
            "diagnose_dataset", "why_not"]
 
 
@@ -376,3 +376,12 @@ def run_stage_diagnose(dataset_dir: str | Path, out_dir: str | Path, config: Map
     with output_dir(out_dir, [dataset_dir], force=force) as tmp:
         write(v, Path(tmp), figures=figures)
     return v
+
+
+def reconcile_job(input, output, params, log) -> None:
+    """Body of the workflow's ``gap_reconcile`` rule (a ``run:`` rule, inside the Snakemake process):
+    :func:`finish_from_draft` inside the rule's log."""
+    from selfsense import stages
+
+    with stages.logged(log[0], exit_on_bad_input=False):
+        finish_from_draft(input.verdict, input.figure, input.table3, output.gap, params.dataset_dir)
