@@ -59,8 +59,9 @@ def _one(args):
 def score(recs: list[dict], k: float = K_FLOORS) -> dict:
     """Noise floor, scored cases, median relative error of the joint shrink, interval coverage, and the runaways
     (|predicted - true| > |true|)."""
-    d = [r["error_noise"] - r["error_without"] for r in recs]
-    floor = float(np.sqrt(np.mean(np.square(d)) / 2.0)) if d else float("nan")
+    from selfsense.gap.blind import tip_noise_floor
+
+    floor = tip_noise_floor(recs)
     rows = []
     for r in recs:
         t, p = float(r["true_all_from_base"]), float(r["shrink_all"])

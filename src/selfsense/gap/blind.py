@@ -365,11 +365,17 @@ def _truth(r: dict, e: str) -> float:
     return float((r.get("true_shrink_from_base") or {}).get(e, r["true_shrink"]))
 
 
+def tip_noise_floor(records: list[dict]) -> float:
+    """The tip tier's noise floor [points]: RMS over the cases of the twin's Table 3 change when only the noise
+    realisation changes, over sqrt 2."""
+    d = [r["error_noise"] - r["error_without"] for r in records]
+    return float(np.sqrt(np.mean(np.square(d)) / 2.0)) if d else float("nan")
+
+
 def _tip_scored(records: list[dict], k: float = 3.0) -> tuple[float, list[dict]]:
     """The tip noise floor and, per case, whether it is scored (its effect named top-1 with a real tip consequence,
     more than ``k`` floors from its base) with its relative shrink error and interval hit."""
-    d = [r["error_noise"] - r["error_without"] for r in records]
-    floor = float(np.sqrt(np.mean(np.square(d)) / 2.0)) if d else float("nan")
+    floor = tip_noise_floor(records)
     rows = []
     for r in records:
         e = next(iter(r["manifest"]["effects"]))
