@@ -149,13 +149,14 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     wherever the CV would select the form; where it would not, the form is still held -- the recalibration scores
     the correction, not a change of form).
 
-    With ``members`` forced the form is *not* held: a chain member is identified jointly with H(q) (its columns or
-    its change of the charge or voltage enter the H fit's rows), so the chain with the member is the estimator the
-    user gets with it, whose H(q) selection runs on those rows. Held, the member's "how far" answered another
-    question: on joint tip case 37 of seed 20261204 (stress-dependent hysteresis, effect-free twin 3.52 %), the
-    stress member with the form held gave 15.79 % (predicted shrink 0.08 points), with the selection 2.16 %."""
+    With a member forced *on* the form is not held: the member is identified jointly with H(q) (its columns, or its
+    change of the charge or voltage, enter the H fit's rows) and the whole H(q) selection runs on those rows, as in the
+    estimator the user gets with it. Held, it answered another question: on the joint tip cases 37 and 5 of seed
+    20261204 (stress-dependent hysteresis, effect-free twins 3.52 and 4.23 %) the stress member gave 15.79 and 11.57 %
+    with the form held, 2.16 and 3.97 % with the selection (a Duhem form, ranked 1st and 8th without the member). A
+    carried member forced *off* (its contribution) keeps the form it was selected with."""
     est = make_estimator(rig)
-    if form and not members and hasattr(est, "h_candidates"):
+    if form and "on" not in (members or {}).values() and hasattr(est, "h_candidates"):
         est.h_candidates = tuple(form)
         if hasattr(est, "h_selection_cv"):
             est.h_selection_cv = False
@@ -189,7 +190,8 @@ def _search_of(fitted):
 
 
 def _form_of(fitted) -> tuple:
-    """The fitted estimator's selected H(q) form (held in every recalibration of the diagnostic), or ``()``."""
+    """The fitted estimator's selected H(q) form (held in the recalibrations of the diagnostic, see :func:`_make`),
+    or ``()``."""
     return fitted.selected_form() if fitted is not None and hasattr(fitted, "selected_form") else ()
 
 
