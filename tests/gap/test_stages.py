@@ -230,6 +230,51 @@ def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
     assert ch["members"]["leakage"]["contribution"] == pytest.approx(e["shrink"], abs=1e-12)
 
 
+def test_a_recalibration_holds_the_h_form_except_for_a_member_forced_on():
+    """A data correction and a carried member forced off keep the fitted H(q) form (refitted without the CV); a member
+    forced on runs the whole selection (``h_candidates`` left to the configuration), as the estimator a user gets
+    with the member does."""
+    from selfsense.gap.counterfactual import _make
+
+    class Est:
+        h_candidates, h_selection_cv, members = (), True, None
+
+    form = (("linear", {}), ("preisach", {"n_grid": 12, "n_play": 10, "ridge": 1e-4}))
+    for mem in (None, {}, {"leakage": "off"}, {"leakage": "off", "hold_rows": "off"}):
+        e = _make(lambda r: Est(), None, mem, form)
+        assert e.h_candidates == form and e.h_selection_cv is False
+    for mem in ({"stress": "on"}, {"stress": "on", "leakage": "off"}):
+        e = _make(lambda r: Est(), None, mem, form)
+        assert e.h_candidates == () and e.h_selection_cv is True and e.members == mem
+
+
+def test_a_member_forced_on_is_identified_jointly_with_the_h_selection():
+    """Joint tip case 37 of seed 20261204: a Bouc-Wen device with stress-dependent hysteresis (effect-free twin 3.52 %
+    of Table 3, the default estimator 15.87 %). The stress member forced on with the Preisach form of the fit without
+    it held gave 15.79 %; with the H(q) selection run on the member's rows (a Duhem form) the chain comes within a point
+    of the twin (measured 2.16 %)."""
+    import sys
+    from pathlib import Path
+
+    from selfsense.gap.blind import FS_CASE, T_CASE
+    from selfsense.gap.counterfactual import _form_of, _make, _summary, tip_table
+    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from tip_joint import draw_joint_case
+
+    c = draw_joint_case(37, 20261204)
+    assert c["family"] == "bouc_wen" and "load.stress_hysteresis" in c["effects"]
+    tr, me, rig = simulate_family_case(c["family"], c["device_seed"], c["effects"], c["noise_seed"], T_CASE, FS_CASE)
+    mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
+    fitted = mk(rig).fit(tr, me)
+    before = _summary(tip_table(tr, me, rig, None, estimator=fitted))["mean"]
+    est = _make(mk, rig, {"stress": "on"}, _form_of(fitted)).fit(tr, me)
+    after = _summary(tip_table(tr, me, rig, None, estimator=est))["mean"]
+    assert est.stress_["applied"] and est.selected_form() != _form_of(fitted)
+    assert before > 12.0 and after < 3.52 + 1.0
+
+
 def test_recalibrations_in_forked_workers_give_the_same_numbers():
     """The counterfactual's recalibrations, fitted two at a time in forked workers (``selfsense gap diagnose --jobs
     2``), give the very numbers of the one-at-a-time run: every table, shrink, interval and Shapley share. In a fresh
