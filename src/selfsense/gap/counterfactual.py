@@ -19,7 +19,7 @@ Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: th
 drift and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
 :mod:`selfsense.chain.amplifier`; the load link's stress-dependent hysteresis, :mod:`selfsense.chain.load`) are not corrected with the stage's coefficients: the estimator is recalibrated
 with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
-member, identified jointly with H(q) and the sensing coefficients. For a member the fitted estimator already carries
+member, identified jointly with H(q) (the whole H(q) selection runs again, :func:`_make`) and the sensing coefficients. For a member the fitted estimator already carries
 (adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it
 forced off, minus Table 3 (the same number as :func:`chain_contributions`), so the shrink is always measured from the
 chain without the effect's model.
