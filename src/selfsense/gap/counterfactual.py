@@ -15,14 +15,15 @@ A correction acts where the stage says the effect acts:
   nominal charge response gives the measured charge);
 * load-stage members: ``f^ <- f^ + c col`` (and the same taken out of the calibration references).
 
-Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset
-drift and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
-:mod:`selfsense.chain.amplifier`; the load link's stress-dependent hysteresis, :mod:`selfsense.chain.load`) are not corrected with the stage's coefficients: the estimator is recalibrated
-with the member forced on, so that "how far it shrinks" is the error of the chain the user would get with that
-member, identified jointly with H(q) (the whole H(q) selection runs again, :func:`_make`) and the sensing coefficients. For a member the fitted estimator already carries
-(adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it
-forced off, minus Table 3 (the same number as :func:`chain_contributions`), so the shrink is always measured from the
-chain without the effect's model.
+Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset drift
+and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
+:mod:`selfsense.chain.amplifier`; the load link's stress-dependent hysteresis, :mod:`selfsense.chain.load`) are not
+corrected with the stage's coefficients: the estimator is recalibrated with the member forced on, so that "how far it
+shrinks" is the error of the chain the user would get with that member, identified jointly with H(q) (the whole H(q)
+selection runs again, :func:`_make`) and the sensing coefficients. For a member the fitted estimator already carries
+(adopted for Table 3), "how far it shrinks" is its own contribution: Table 3 of the chain recalibrated with it forced
+off, minus Table 3 (the same number as :func:`chain_contributions`), so the shrink is always measured from the chain
+without the effect's model.
 
 The estimator is then recalibrated on the corrected calibration trials and scored on the corrected validation
 trials (thesis Table 3 style: mean |error| in % of the reference range per trial, then per measurement), for no
@@ -142,7 +143,7 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     """An unfitted estimator of the configuration, with ``members`` forced and, when ``form`` is given (the fitted
     estimator's :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.selected_form`), its H(q) form held: a
     recalibration refits the selected form beside the straight line instead of repeating the whole selection, so
-    that before and after differ by the correction or the member alone, not by a change of the selected form.
+    that before and after differ by the correction alone, not by a change of the selected form.
     ``reuse``: the fitted estimator's leakage search (:func:`_search_of`), taken over by a recalibration on the same
     calibration inputs (the estimator checks their digest) instead of searched again. The held form is refitted
     without the blocked CV between it and the straight line (``h_selection_cv = False``: the same model bit for bit
