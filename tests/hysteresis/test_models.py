@@ -432,6 +432,31 @@ def test_held_form_without_cv_is_the_model_the_cv_selects_bit_for_bit():
         select_h_model(qs, y, DT, candidates=form + (("pi", {"n_play": 6}),), cv=False)
 
 
+def test_pruned_selection_selects_the_same_model_bit_for_bit():
+    """select_h_model(prune=True) (the gap diagnostic's recalibrations): a candidate fitted fold by fold (the Duhem
+    form, the modified PI) is stopped once its folds done exceed the best convex candidate's mean; the selected model,
+    its row and the warnings are those of the full selection, bit for bit, and the stopped rows say so."""
+    from selfsense.hysteresis.models.select import PRUNED_STATUS
+
+    qs, y, extras, _ = _rows_case()
+    cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}),
+             ("modified_pi", {"n_play": 6, "n_sup": 3, "n_creep": 2}), ("duhem", {"degree": 2, "ridge": 1e-7}))
+    full = select_h_model(qs, y, DT, extras=extras, candidates=cands)
+    pruned = select_h_model(qs, y, DT, extras=extras, candidates=cands, prune=True)
+    best = next(r for r in full.table if r["selected"])
+    assert next(r for r in pruned.table if r["selected"]) == best
+    assert pruned.model.coef_.tobytes() == full.model.coef_.tobytes()
+    assert pruned.extra_coef.tobytes() == full.extra_coef.tobytes() and pruned.warnings == full.warnings
+    stopped = [r for r in pruned.table if r["status"] == PRUNED_STATUS]
+    assert {r["kind"] for r in stopped} == {"modified_pi", "duhem"}
+    for r in stopped:   # the folds done are the full selection's; they already put its mean above the best's
+        done = [v for v in r["cv_rms_v"] if np.isfinite(v)]
+        assert 0 < len(done) < 5 and np.isnan(r["cv_rms_mean_v"]) and sum(done) / 5 > best["cv_rms_mean_v"]
+        assert done == next(f for f in full.table if f["label"] == r["label"])["cv_rms_v"][:len(done)]
+    assert [r for r in pruned.table if r["status"] != PRUNED_STATUS] == [
+        r for r in full.table if r["label"] not in {s["label"] for s in stopped}]
+
+
 def test_held_non_convex_form_takes_the_fold_fits_as_starts_as_the_selection_does(monkeypatch):
     """A held Duhem form (select_h_model(cv=False)) is fitted from the same starting points as after the selection,
     its blocked-CV fold fits among them (select._final_fit): the same model and extra coefficients bit for bit, and

@@ -157,10 +157,10 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     with the form held, 2.16 and 3.97 % with the selection (a Duhem form, ranked 1st and 8th without the member). A
     carried member forced *off* (its contribution) keeps the form it was selected with."""
     est = make_estimator(rig)
+    if hasattr(est, "h_selection_prune"):   # only the selected row is read here: dominated candidates are stopped
+        est.h_selection_prune = True
     if form and "on" not in (members or {}).values() and hasattr(est, "h_candidates"):
-        est.h_candidates = tuple(form)
-        if hasattr(est, "h_selection_cv"):
-            est.h_selection_cv = False
+        est.h_candidates, est.h_selection_cv = tuple(form), False
     if reuse and hasattr(est, "leakage_search_reuse"):
         est.leakage_search_reuse = dict(reuse)
     if members:

@@ -605,6 +605,11 @@ class SelfSensingEstimator:
     #: straight line in its place. A form not linear in its parameters keeps the CV (the leakage check of
     #: :meth:`_leakage_check_with_selected` reads its CV error)
     h_selection_cv: bool = True
+    #: True: the blocked-CV selection of ``h_model: auto`` stops a candidate fitted fold by fold (the Duhem form, the
+    #: modified PI) as soon as it can no longer beat the best convex candidate (``select_h_model(..., prune=True)``):
+    #: the selected model and its row are those of the full selection, the other rows may lack folds. For a fit whose
+    #: table is not published: the gap diagnostic's recalibrations set it (:func:`selfsense.gap.counterfactual._make`)
+    h_selection_prune: bool = False
     #: the leakage search of an earlier fit (its ``fit_report_["hysteresis"]["drift"]["search"]``): reused, not
     #: searched again, when it was made on the same calibration inputs (``inputs_sha256``: the charge, voltage, force
     #: and relay of the calibration trials and the gauge slope, bit for bit). The search does not depend on the
@@ -1042,8 +1047,9 @@ class SelfSensingEstimator:
         candidates = tuple(self.h_candidates) or _candidates_for(cfg.h_model, cfg)
         holds = self._hold_set(slope, drift_cols=self.offset_drift_)
         use_cv = self.h_selection_cv or not _held_linear_form(self.h_candidates)
+        prune = self.h_selection_prune and cfg.h_model == "auto"   # (another h_model reads its kind's rows)
         sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv)
+                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv, prune=prune)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
             from selfsense.hysteresis.models import make_model
@@ -1096,7 +1102,7 @@ class SelfSensingEstimator:
                 qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, 0.0)
                 holds = self._hold_set(slope, drift_cols=self.offset_drift_)
                 sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds)
+                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, prune=prune)
                 model = sel.model
         elif (not self.leakage_s_ and LEAK_SELECTED_FORM_RATIO > 0 and cfg.h_model == "auto"
               and self._member_modes()["leakage"] == "auto" and drift_info.get("source") == "none"
@@ -1106,7 +1112,8 @@ class SelfSensingEstimator:
             # blocked CV with g against without), so that leakage is identified jointly with the H(q) form. A
             # recalibration that holds the form decides on the held form's CV, so it reproduces the decision
             sel0 = sel if use_cv else select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds)
+                                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds,
+                                                     prune=prune)
             got = self._leakage_by_selection(sel0, cal_trials, cal, slope, dt, candidates, drift_info)
             if got is not None:
                 sel, qs, ys, ex, free_mask, names, holds = got
@@ -1225,7 +1232,8 @@ class SelfSensingEstimator:
             return None
         qs, ys, ex, free, names, holds = self._rows_at(cal_trials, cal, slope, g, od)
         sel_g = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=candidates,
-                               n_blocks=int(self.config.cv_blocks), trial_names=names, holds=holds)
+                               n_blocks=int(self.config.cv_blocks), trial_names=names, holds=holds,
+                               prune=self.h_selection_prune)
         row = next(r for r in sel_g.table if r["selected"])
         cv_g = float(row["cv_rms_mean_v"])
         adopted = bool(np.isfinite(cv_g) and np.isfinite(cv_0) and cv_g < LEAK_SELECTED_FORM_RATIO * cv_0)

@@ -219,9 +219,10 @@ def _hold_score(model, holds, dt, n_cal: int, n_folds: int):
     return r, _hold_folds(hid, n_folds), _stride_and_weight(holds, n_cal)[1] ** 2
 
 
-def _cv_qp(model, qs, ys, dt, E, folds, free, thin, holds=None):
+def _cv_qp(model, qs, ys, dt, E, folds, free, thin, holds=None, bound: float | None = None):
     """CV of a model without extra columns (modified PI): fitted on the first free-tip segment's training rows,
-    then the extra columns regressed on the residual of the training rows of all segments."""
+    then the extra columns regressed on the residual of the training rows of all segments. ``bound``: stop once the
+    folds done can no longer give a mean below it (:func:`_beyond`)."""
     lengths = [len(q) for q in qs]
     i0 = int(np.flatnonzero(free)[0])
     off0 = int(sum(lengths[:i0]))
@@ -240,6 +241,8 @@ def _cv_qp(model, qs, ys, dt, E, folds, free, thin, holds=None):
             r = r - E @ c
         ev = held & keep
         rms.append(_fold_rms(model, r[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds), len(rms)))
+        if _beyond(rms, len(folds), bound):
+            break
     return rms
 
 
@@ -258,11 +261,19 @@ def _takes_fold_starts(model) -> bool:
     return bool(getattr(model, "joint_extra", False)) and not getattr(model, "convex", True)
 
 
-def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, starts_out: list | None = None):
+def _beyond(rms: list, n_folds: int, bound: float | None) -> bool:
+    """Whether the fold errors done already put the mean over ``n_folds`` folds above ``bound``: every fold's RMS is
+    >= 0, so the mean is at least ``sum(done) / n_folds`` (a strict, relative margin of 1e-12 against rounding)."""
+    return bound is not None and float(np.sum(rms)) / n_folds > bound * (1.0 + 1e-12)
+
+
+def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, starts_out: list | None = None,
+               bound: float | None = None):
     """CV of a model that is not linear in its parameters but fits extra columns jointly and accepts a row mask
     (``duhem``): fitted on the training rows of every segment (its state runs over every sample), scored on every
     ``thin``-th held-out row. ``starts_out``: a list that receives each fold fit's parameters (``coef_``), the
-    extra starting points of the final fit on all rows (:func:`_final_fit`)."""
+    extra starting points of the final fit on all rows (:func:`_final_fit`). ``bound``: stop once the folds done
+    can no longer give a mean below it (:func:`_beyond`)."""
     lengths = [len(q) for q in qs]
     folds = blocked_folds(lengths, n_blocks, rotate=rotate)
     y = np.concatenate(ys)
@@ -283,17 +294,22 @@ def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, st
         ev = held & keep
         rms.append(_fold_rms(model, (pred - y)[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds),
                              len(rms)))
+        if _beyond(rms, len(folds), bound):
+            break
     return rms
 
 
 def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, folds, n_blocks: int, rotate: bool,
-                 thin: int, holds=None, rows_out: list | None = None, starts_out: list | None = None) -> dict:
+                 thin: int, holds=None, rows_out: list | None = None, starts_out: list | None = None,
+                 bound: float | None = None) -> dict:
     """One row of the selection table: the blocked-CV fold RMS of ``model`` (made from ``kind``, ``params``) on the
     segments, by the fit its class needs (linear least squares, the masked joint fit, or the QP on the first
     free-tip segment); a candidate that cannot be fitted is out of the race and its status says why.
     ``rows_out``: a list that receives the stacked least-squares rows of a model linear in its parameters
     (:func:`_cv_linear`); ``starts_out``: a list that receives the fold fits' parameters of a masked joint fit
-    (:func:`_cv_masked`)."""
+    (:func:`_cv_masked`). ``bound`` (a fit fold by fold: the masked joint fit, the QP): the CV stops once its mean
+    cannot come below ``bound`` (:func:`_beyond`); the row then has the folds done, NaN for the others and the status
+    :data:`PRUNED_STATUS`."""
     lengths = [len(q) for q in qs]
     k = fit_stride(lengths)
     try:
@@ -301,13 +317,15 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
             rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds, rows_out=rows_out)
         elif getattr(model, "joint_extra", False):
             rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds,
-                             starts_out=starts_out if _takes_fold_starts(model) else None)
+                             starts_out=starts_out if _takes_fold_starts(model) else None, bound=bound)
         elif k == 1:
-            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin, holds)
+            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin, holds, bound=bound)
         else:
             raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
                              f"200000 samples only")
         status = "ok"
+        if len(rms) < n_blocks:
+            rms, status = list(rms) + [float("nan")] * (n_blocks - len(rms)), PRUNED_STATUS
     except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
         rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
     bad = [i + 1 for i, r in enumerate(rms) if not np.isfinite(r)]
@@ -316,6 +334,10 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
     return {"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
             "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
             "status": status, "selected": False}
+
+
+#: status of a candidate whose blocked CV was stopped (``select_h_model(..., prune=True)``): it could not be selected
+PRUNED_STATUS = "pruned: its folds done already exceed the best convex candidate's mean"
 
 
 #: a candidate whose worst held-out fold exceeds this many times the straight line's worst fold is unstable out of
@@ -352,7 +374,7 @@ def json_safe_table(table: list[dict]) -> list[dict]:
 
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
-                   rotate_folds: bool | None = None, holds=None, cv: bool = True) -> SelectionResult:
+                   rotate_folds: bool | None = None, holds=None, cv: bool = True, prune: bool = False) -> SelectionResult:
     """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
     columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
 
@@ -366,7 +388,16 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     form other than the straight line (the straight line when there is none) is selected and refitted on all rows
     by the same final fit as after the CV -- the final fit reads no CV number, so the model is bit-identical to the
     one the CV gives wherever it selects that form. Its table rows carry no fold errors (NaN) and the status
-    :data:`HELD_STATUS`; no warning or straight-line check is made (they read the CV)."""
+    :data:`HELD_STATUS`; no warning or straight-line check is made (they read the CV).
+
+    ``prune=True`` (a caller that reads only the selected row, as the gap diagnostic's recalibrations): candidates
+    are cross-validated one after the other in the given order, and one fitted fold by fold (the masked joint fit,
+    the QP) is stopped as soon as the mean of its fold errors is sure to exceed that of the best convex candidate
+    done so far (each fold's RMS is >= 0): it could be neither the best nor, under the one-standard-error rule
+    above, preferred to that convex one, so the selected model, its row and the warnings are those of the full
+    selection; the stopped rows keep the folds done and the status :data:`PRUNED_STATUS`. The straight line and
+    the PI baseline are never stopped (the checks above read them), and nothing is stopped before the straight line
+    is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
     qs = [np.asarray(q, float) for q in qs]
@@ -379,16 +410,16 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     rotate = ROTATE_FOLDS if rotate_folds is None else bool(rotate_folds)
     folds = blocked_folds([len(q[::k]) for q in qs], n_blocks, rotate=rotate)
     holds = holds if holds else None
-    def row(cand, rows_out=None):
+    def row(cand, rows_out=None, bound=None):
         kind, params = cand
         starts: list = []
         r = cv_candidate(make_model(kind, **params), kind, params, qs, ys, dt, extras, free, folds, n_blocks,
-                         rotate, thin, holds, rows_out=rows_out, starts_out=starts)
+                         rotate, thin, holds, rows_out=rows_out, starts_out=starts, bound=bound)
         if starts:   # the fold fits of a non-convex model: starting points of its final fit (taken off below)
             r["_starts"] = starts
         return r
 
-    workers = min(_CV_WORKERS.get(), len(candidates))
+    workers = 1 if prune else min(_CV_WORKERS.get(), len(candidates))   # pruning needs the order of the candidates
     kept = None   # (table row, its least-squares rows): the best candidate so far linear in its parameters
     if workers > 1:
         from selfsense.parallel import fork_map
@@ -403,9 +434,17 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         # of at most KEEP_ROWS_BYTES), and if it is selected its final fit solves them as they are instead of
         # building them again (the same rows, so the same model bit for bit; in forked workers they stay there)
         table = []
+        ref, lin_worst = None, (None if any(c[0] == "linear" for c in candidates) else np.inf)
         for c in candidates:
             got: list = []
-            r = row(c, got)
+            r = row(c, got, ref if prune and lin_worst is not None and c[0] not in ("linear", "pi") else None)
+            if r["kind"] == "linear" and lin_worst is None:
+                lin_worst = float(np.max(r["cv_rms_v"])) if r["status"] == "ok" else np.inf
+            if (prune and r["kind"] != "linear" and r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])
+                    and getattr(make_model(r["kind"], **r["params"]), "convex", True) and lin_worst is not None
+                    and not float(np.max(r["cv_rms_v"])) > UNSTABLE_FACTOR * lin_worst
+                    and (ref is None or r["cv_rms_mean_v"] < ref)):
+                ref = r["cv_rms_mean_v"]   # the best convex candidate so far that _reject_unstable keeps
             table.append(r)
             if (got and r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"]) and got[0].X.nbytes <= KEEP_ROWS_BYTES
                     and (kept is None or r["cv_rms_mean_v"] < kept[0]["cv_rms_mean_v"])):
