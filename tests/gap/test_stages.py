@@ -135,6 +135,22 @@ def test_stress_dependent_hysteresis_named_from_the_blocked_tip_and_its_voltage_
     assert 0.7 < np.std(dv) / np.std(part) < 1.3
 
 
+def test_stress_on_a_strongly_hysteretic_device_is_named_by_the_wide_blocked_member(thr):
+    """Development case 38 of the stage campaign seed 8080 (generalised PI, stress-dependent hysteresis 18x its
+    reference): the scaled hysteresis is far from H's linear part, so the narrow blocked member (Q p) gains less than
+    its threshold, and the wide one (H^(Q) |p| and Q p) names it, with its own threshold above the narrow one's."""
+    from selfsense.gap.blind import FS_CASE, T_CASE, draw_case
+
+    c = draw_case(38, 8080)
+    assert c["family"] == "gpi" and list(c["effects"]) == ["load.stress_hysteresis"]
+    tr, me, rig = simulate_family_case(c["family"], c["device_seed"], c["effects"], c["noise_seed"], T_CASE, FS_CASE)
+    d = S.diagnose_stages(tr, me, rig, thr)
+    g = S.stage_gains(S.build_stage("blocked", d["_signals"], d["_context"]))
+    narrow, wide = "load.stress_hysteresis@blocked", "load.stress_hysteresis@blocked_h"
+    assert g[narrow] < thr[narrow] < thr[wide] < g[wide]
+    assert d["top"] == "load.stress_hysteresis" and d["effects"][0]["member"] == wide
+
+
 @pytest.mark.parametrize("family", ["preisach", "bouc_wen", "gpi", "jiles_atherton"])
 def test_blocked_stage_does_not_name_stress_for_a_temperature_drift_or_an_effect_free_device(family, thr):
     """The blocked-tip stage's member is specific: a campaign-long temperature rise (C_p and alpha drifting) and an

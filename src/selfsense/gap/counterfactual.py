@@ -47,8 +47,7 @@ __all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "coun
 
 #: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
 CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier",
-                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress",
-                 "load.stress_hysteresis@blocked": "stress"}
+                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -56,7 +55,7 @@ CORRECTION_KIND = {
     "slow.leakage@el": "charge_el", "slow.offset_drift@el": "charge_el", "slow.temperature@el": "charge_el",
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
     "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
-}
+    "load.stress_hysteresis@blocked_h": "voltage_blk"}
 N_BLOCKS = 6
 
 

@@ -184,6 +184,7 @@ class Member:
     #: member is judged by its gain on the nominal model's RMS, what its null was measured on, not on what the
     #: members accepted before it left (their forms are not the world's, and their misfit is not in its null)
     null_floor: float | None = None
+    fallback_of: str | None = None  #: a wider form of the member named here, tried only where that member fails
 
 
 def _c_leak(s, ctx, g):
@@ -282,6 +283,15 @@ def _c_stress_blocked(s, ctx, g):
     return (p * s.Q / ctx["q_span"] ** 2)[:, None]
 
 
+def _c_stress_blocked_h(s, ctx, g):
+    """The wider form of :func:`_c_stress_blocked`, H(Q) (1 + m |p|): H^(Q) |p| and Q p, for an H far from linear in Q
+    (two columns, a larger null gain: a threshold of its own, tried only where the narrow form fails)."""
+    if s.tip == "free":
+        return np.zeros((len(s), 2))
+    p = s.Q if s.tip == "blocked" else s.extra["f_hat"] / ctx["kappa"]
+    return np.column_stack([p * s.Q / ctx["q_span"] ** 2, np.abs(p) * s.extra["v_h"] / (ctx["q_span"] * ctx["v_span"])])
+
+
 def _c_contact(s, ctx, g):
     fh = s.extra["f_hat"] / ctx["f_span"]
     c = np.maximum(fh, 0.0)
@@ -292,6 +302,7 @@ def _c_contact(s, ctx, g):
 CREEP_TAU_S = (0.1, 0.3, 1.0, 3.0, 10.0)
 TAU_GRID = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
 MODE_GRID = (8.0, 12.0, 18.0, 27.0, 40.0, 60.0, 90.0, 135.0)
+_STRESS_BLK = "load.stress_hysteresis@blocked"
 
 MEMBERS: dict[str, Member] = {m.name: m for m in [
     # mechanical stage: laser against charge on free-tip trials
@@ -332,9 +343,11 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     # load stage: load cell against the nominal force estimate on force-reference trials
     Member("load.stress_hysteresis", "load", "load", _c_stress, physics="H(q) scaled by the tip load: f^ V, f^2"),
     # blocked stage: V against Q on blocked-tip trials (reference-free)
-    Member("load.stress_hysteresis@blocked", "load", "blocked", _c_stress_blocked,
+    Member(_STRESS_BLK, "load", "blocked", _c_stress_blocked,
            physics="H(q) scaled by the actuator stress: on a blocked tip f is proportional to Q, so V = Q / (n_A C_p) + "
                    "H(Q) + c Q^2 (H's linear part scaled; H itself is identified on the free tip)"),
+    Member("load.stress_hysteresis@blocked_h", "load", "blocked", _c_stress_blocked_h, fallback_of=_STRESS_BLK,
+           physics="H(q) scaled by the actuator stress, its loop too: V = V_p + H(Q) (1 + m |p|), H^(Q) |p| and Q p"),
     Member("load.contact", "load", "load", _c_contact, physics="Hertz-like contact: f^1.5, f^0.5 (compressive)"),
 ]}
 
@@ -586,6 +599,10 @@ def diagnose_stage(sm: StageModel, thr: dict) -> dict:
             cand.append((MEMBERS[m].gain is None, g / thr.get(m, np.inf), g, k, m))
         # column members first; level tests (no columns) only on what the accepted column members leave
         cand = [c for c in cand if c[1] > 1.0] or cand
+        done = {a["member"] for a in accepted} | {x[4] for x in cand if x[1] > 1.0}  # a wider form: where they fail
+        cand = [c for c in cand if MEMBERS[c[4]].fallback_of not in done]
+        if not cand:
+            break
         cand.sort(reverse=True)
         _, ratio, g, k, m = cand[0]
         if not ratio > 1.0:
