@@ -45,6 +45,9 @@ DATES = {
     "gap_stages_16180": "2026-11-26",
     "gap_stages_31337": "2026-11-27",
     "gap_stages_20261201": "2026-12-01",
+    "gap_stages_20261207": "2026-12-02",
+    "stress_first_20261206": "2026-12-02",
+    "stress_wide_20261206": "2026-12-02",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -142,6 +145,12 @@ COMMANDS = {
     # the stand-in's H a Preisach operator with creep (the blocked stage's nominal), thresholds recalibrated
     "gap_stages_20261201": "selfsense gap blind --n 1000 --seed 20261201 --jobs 2 "
                            "--out benchmarks/gap_stages/seed_20261201",
+    "gap_stages_20261207": "selfsense gap blind --n 1000 --seed 20261207 --jobs 2 "
+                           "--out benchmarks/gap_stages/seed_20261207",
+    "stress_first_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
+                             "--jobs 1 --campaign none --out benchmarks/gap_tip/stress_first_20261206.md",
+    "stress_wide_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 104 --jobs 1 --campaign none "
+                            "--out benchmarks/gap_tip/stress_wide_20261206.md",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     # the tip tier after the simulator's stress fix, with a carried chain member scored by its own contribution
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
@@ -682,7 +691,9 @@ def gap_figures() -> list[Fig]:
          "code and simulator"),
         ("benchmarks/gap_stages/seed_31337", "gap_stages_31337", "; made with the earlier stand-in H (a PI of 8 plays), "
          "the seed-20261201 rows are the current code"),
-        ("benchmarks/gap_stages/seed_20261201", "gap_stages_20261201", ""),
+        ("benchmarks/gap_stages/seed_20261201", "gap_stages_20261201", "; made before the wider blocked-stage form of "
+         "stress-dependent hysteresis, the seed-20261207 rows are the current code"),
+        ("benchmarks/gap_stages/seed_20261207", "gap_stages_20261207", ""),
     ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())
@@ -824,6 +835,28 @@ def gap_figures() -> list[Fig]:
                           f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
                        + f"; {sum(bool(r['adopted_twin']) for r in sb)} of {len(sb)}", "", "measured", ssrc,
                        COMMANDS["stress_blind"], DATES["stress_blind"]))
+    for key, what in (("stress_first_20261206", "the stress member forced on identified with the H(q) selection "
+                       "(first contact: 8 load.stress_hysteresis tip cases of a seed not used before)"),
+                      ("stress_wide_20261206", "the same seed's costly case the narrow blocked form left unnamed, "
+                       "with the wider form (first contact of the form)")):
+        src_ = f"benchmarks/gap_tip/{key}.jsonl.gz"
+        if not (ROOT / src_).exists():
+            continue
+        from selfsense.gap.blind import COST_POINTS, _truth
+
+        rs = [json.loads(x) for x in gzip.open(ROOT / src_, "rt")]
+        e = "load.stress_hysteresis"
+        costly = [r for r in rs if r["true_shrink"] >= COST_POINTS]
+        named = [r for r in rs if r["top"] == e and e in r["predicted_shrink"]]
+        errs = [abs(r["predicted_shrink"][e] - _truth(r, e)) / abs(_truth(r, e)) for r in named if _truth(r, e)]
+        out.append(Fig(f"gap diagnostic, tip tier, {what}: cases costing >= 3 points named; median relative error "
+                       "of the predicted shrink over the cases named (largest cost)",
+                       f"{sum(r['top'] == e for r in costly)} of {len(costly)}; "
+                       + (f"{statistics.median(errs):.2f} ({len(errs)} cases)" if errs else "-")
+                       + f" ({max(r['true_shrink'] for r in rs):.1f} points)", ">= 90 %; <= 0.35",
+                       _met(sum(r["top"] == e for r in costly) >= 0.9 * len(costly) and bool(errs)
+                            and statistics.median(errs) <= 0.35), src_,
+                       COMMANDS[key], DATES[key]))
     nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
     if (ROOT / nsrc_).exists():
         nl = [json.loads(x) for x in gzip.open(ROOT / nsrc_, "rt")]

@@ -15,7 +15,7 @@ import pytest
 from selfsense.gap import blind
 
 ROOT = Path(__file__).resolve().parents[2]
-CAMPAIGN = ROOT / "benchmarks" / "gap_stages" / "seed_20261201"   #: made with the current diagnostic and simulator
+CAMPAIGN = ROOT / "benchmarks" / "gap_stages" / "seed_20261207"   #: made with the current diagnostic and simulator
 
 
 def _records(folder: Path) -> list[dict]:
@@ -29,7 +29,7 @@ def records():
 
 
 @pytest.mark.parametrize("folder", [CAMPAIGN.parent, CAMPAIGN.parent / "seed_16180", CAMPAIGN.parent / "seed_31337",
-                                    CAMPAIGN])
+                                    CAMPAIGN.parent / "seed_20261201", CAMPAIGN])
 def test_committed_scores_recompute_from_the_records(folder):
     records = _records(folder)
     sc = blind.score(records)
