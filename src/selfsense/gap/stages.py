@@ -40,6 +40,7 @@ coefficients; the truth it is checked against is the stage residual re-simulated
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -270,26 +271,20 @@ def _c_stress(s, ctx, g):
     return np.column_stack([fh * s.V / ctx["v_span"], fh * fh])
 
 
-def _c_stress_blocked(s, ctx, g):
+def _c_stress_blocked(s, ctx, g, wide: bool = False):
     """H(Q) scaled by the actuator stress, to first order in its linear part: on a blocked tip the stress is
     proportional to Q, so V = Q / (n_A C_p) + H(Q) + c Q^2. A dependence on the field alone is part of H(Q), which is
     identified on the free tip over the same charge range; at equal Q the blocked and the free tip differ only in
     stress. On a free tip there is no tip load (the column is 0); on any other trial the stress proxy is the stand-in's
     force estimate over the blocked trials' force per charge (``kappa``), so that a correction carries to contact
-    trials."""
+    trials. ``wide`` (member ``load.stress_hysteresis@blocked_h``): H(Q) (1 + m |p|), the column H^(Q) |p| beside
+    Q p, for an H far from linear in Q (two columns, a larger null gain: a threshold of its own, tried only where the
+    narrow form fails)."""
     if s.tip == "free":
-        return np.zeros((len(s), 1))
+        return np.zeros((len(s), 1 + wide))
     p = s.Q if s.tip == "blocked" else s.extra["f_hat"] / ctx["kappa"]
-    return (p * s.Q / ctx["q_span"] ** 2)[:, None]
-
-
-def _c_stress_blocked_h(s, ctx, g):
-    """The wider form of :func:`_c_stress_blocked`, H(Q) (1 + m |p|): H^(Q) |p| and Q p, for an H far from linear in Q
-    (two columns, a larger null gain: a threshold of its own, tried only where the narrow form fails)."""
-    if s.tip == "free":
-        return np.zeros((len(s), 2))
-    p = s.Q if s.tip == "blocked" else s.extra["f_hat"] / ctx["kappa"]
-    return np.column_stack([p * s.Q / ctx["q_span"] ** 2, np.abs(p) * s.extra["v_h"] / (ctx["q_span"] * ctx["v_span"])])
+    c = p * s.Q / ctx["q_span"] ** 2
+    return np.column_stack([c, np.abs(p) * s.extra["v_h"] / (ctx["q_span"] * ctx["v_span"])]) if wide else c[:, None]
 
 
 def _c_contact(s, ctx, g):
@@ -346,7 +341,8 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     Member(_STRESS_BLK, "load", "blocked", _c_stress_blocked,
            physics="H(q) scaled by the actuator stress: on a blocked tip f is proportional to Q, so V = Q / (n_A C_p) + "
                    "H(Q) + c Q^2 (H's linear part scaled; H itself is identified on the free tip)"),
-    Member("load.stress_hysteresis@blocked_h", "load", "blocked", _c_stress_blocked_h, fallback_of=_STRESS_BLK,
+    Member("load.stress_hysteresis@blocked_h", "load", "blocked", partial(_c_stress_blocked, wide=True),
+           fallback_of=_STRESS_BLK,
            physics="H(q) scaled by the actuator stress, its loop too: V = V_p + H(Q) (1 + m |p|), H^(Q) |p| and Q p"),
     Member("load.contact", "load", "load", _c_contact, physics="Hertz-like contact: f^1.5, f^0.5 (compressive)"),
 ]}

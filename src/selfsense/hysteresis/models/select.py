@@ -355,10 +355,14 @@ def _reject_unstable(table: list[dict]) -> None:
     for r in table:
         if r is lin or r["status"] != "ok":
             continue
-        worst = float(np.max(r["cv_rms_v"]))
-        if worst > UNSTABLE_FACTOR * ref:
-            r["status"] = (f"rejected: unstable out of sample (worst fold {worst:.4g} V > {UNSTABLE_FACTOR:g} x the "
-                           f"straight line's worst fold {ref:.4g} V)")
+        if _unstable(r, ref):
+            r["status"] = (f"rejected: unstable out of sample (worst fold {float(np.max(r['cv_rms_v'])):.4g} V > "
+                           f"{UNSTABLE_FACTOR:g} x the straight line's worst fold {ref:.4g} V)")
+
+
+def _unstable(row: dict, lin_worst: float) -> bool:
+    """Whether a candidate's worst held-out fold exceeds :data:`UNSTABLE_FACTOR` x the straight line's worst fold."""
+    return float(np.max(row["cv_rms_v"])) > UNSTABLE_FACTOR * lin_worst
 
 
 def json_safe_table(table: list[dict]) -> list[dict]:
@@ -442,7 +446,7 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
                 lin_worst = float(np.max(r["cv_rms_v"])) if r["status"] == "ok" else np.inf
             if (prune and r["kind"] != "linear" and r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])
                     and getattr(make_model(r["kind"], **r["params"]), "convex", True) and lin_worst is not None
-                    and not float(np.max(r["cv_rms_v"])) > UNSTABLE_FACTOR * lin_worst
+                    and not _unstable(r, lin_worst)
                     and (ref is None or r["cv_rms_mean_v"] < ref)):
                 ref = r["cv_rms_mean_v"]   # the best convex candidate so far that _reject_unstable keeps
             table.append(r)
