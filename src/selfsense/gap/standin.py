@@ -81,9 +81,11 @@ class FastSensingEstimator:
     hysteresis_: Any = field(default=None, init=False, repr=False)
     coef_: dict = field(default_factory=dict, init=False)
 
-    def _regressors(self, df: pd.DataFrame) -> np.ndarray:
+    def _regressors(self, df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+        """``[Q, V_p]`` (thesis eq. 27) and ``H(Q)``: the Preisach grid evaluated once per trial."""
         Q = df["q"].to_numpy(float)
-        return np.column_stack([Q, piezo_voltage(df["V"].to_numpy(float), self.hysteresis_(Q))])  # thesis eq. (27)
+        H = self.hysteresis_(Q)
+        return np.column_stack([Q, piezo_voltage(df["V"].to_numpy(float), H)]), H
 
     def fit(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "FastSensingEstimator":
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
@@ -102,7 +104,7 @@ class FastSensingEstimator:
         for tid, row in cal.to_dict("index").items():
             df = trials[tid]
             m = df["relay"].to_numpy() < 0.5
-            F = self._regressors(df)[m]
+            F = self._regressors(df)[0][m]
             if row["reference"] == "displacement":
                 ref = df["dx_ref"].to_numpy(float)[m]
                 ok = np.isfinite(ref)
@@ -129,12 +131,10 @@ class FastSensingEstimator:
         return self
 
     def estimate(self, df: pd.DataFrame) -> pd.DataFrame:
-        X = self._regressors(df)
+        X, H = self._regressors(df)
         dx = tip_displacement(X[:, 0], X[:, 1], self.cd_[0], self.cd_[1])   # thesis eq. (52)
         f = tip_force(X[:, 0], X[:, 1], self.cf_[0], self.cf_[1])           # thesis eq. (46) / (52)
         relay = df["relay"].to_numpy() >= 0.5
-        dx = np.where(relay, 0.0, dx)
-        f = np.where(relay, 0.0, f)
-        Q = df["q"].to_numpy(float)
+        dx, f = np.where(relay, 0.0, dx), np.where(relay, 0.0, f)
         return pd.DataFrame({"t": df["t"].to_numpy(float), "dx_hat": dx, "f_hat": f, "dx_raw": dx, "f_raw": f,
-                             "V_p": X[:, 1], "V_H": self.hysteresis_(Q), "q": Q})
+                             "V_p": X[:, 1], "V_H": H, "q": X[:, 0]})
