@@ -494,3 +494,44 @@ def test_fit_refuses_rows_that_are_not_those_of_its_data():
         PlayH(n_play=6).fit([qs[0]], [y[0]], DT, extra=[extras[0]], holds=holds, rows=rows)
     with pytest.raises(ValueError, match="not those of"):
         PlayH(n_play=6).fit(qs, y, DT, rows=rows)   # the same calibration rows, but without holds
+
+
+def test_one_standard_error_stop_never_stops_a_candidate_the_rule_could_prefer():
+    """select._se_beyond (the pruned selection's stop of a non-convex candidate): whenever it says stop, no completion
+    of the candidate's other folds (any RMS >= 0) passes the one-standard-error rule of select_h_model against the
+    convex candidate; and it stops where the first fold is far above the convex one's (the gap recalibration on
+    tweezer_sim: a Duhem fold of 0.086 V against 0.015-0.020 V)."""
+    from selfsense.hysteresis.models.select import _se_beyond
+
+    alt = [0.01736, 0.01689, 0.01498, 0.01757, 0.02028]
+    assert _se_beyond([0.08586], alt) and not _se_beyond([0.0170], alt)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        n = int(rng.integers(2, 7))
+        a = list(rng.uniform(0.5, 1.5, n))
+        k = int(rng.integers(1, n))
+        done = list(rng.uniform(0.0, 2.0, k))
+        rest = rng.uniform(0.0, 1.0, (400, n - k)) * np.asarray(a[k:])
+        d = np.asarray(a) - np.column_stack([np.tile(done, (len(rest), 1)), rest])
+        passes = d.mean(axis=1) > d.std(axis=1, ddof=1) / np.sqrt(n)
+        assert not (_se_beyond(done, a) and passes.any())
+
+
+def test_pruned_selection_stops_a_linear_candidate_on_its_blocks_own_residuals():
+    """select_h_model(prune=True): a candidate linear in its parameters whose held-out blocks cannot be fitted, even by
+    themselves, to below the best convex candidate's mean is stopped after factoring them (select._cv_linear's bound);
+    the selected model is the full selection's bit for bit, and the stopped row's full mean is above the best's."""
+    from selfsense.hysteresis.models.select import PRUNED_BLOCKS_STATUS
+
+    qs, y, extras, _ = _rows_case()
+    cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}),
+             ("preisach", {"n_grid": 2, "n_play": 0, "creep": False}))
+    full = select_h_model(qs, y, DT, extras=extras, candidates=cands)
+    pruned = select_h_model(qs, y, DT, extras=extras, candidates=cands, prune=True)
+    best = next(r for r in full.table if r["selected"])
+    assert next(r for r in pruned.table if r["selected"]) == best
+    assert pruned.model.coef_.tobytes() == full.model.coef_.tobytes()
+    assert pruned.extra_coef.tobytes() == full.extra_coef.tobytes() and pruned.warnings == full.warnings
+    assert [r["status"] for r in pruned.table][-1] == PRUNED_BLOCKS_STATUS
+    assert full.table[-1]["cv_rms_mean_v"] > best["cv_rms_mean_v"]
+    assert pruned.table[:-1] == full.table[:-1]
