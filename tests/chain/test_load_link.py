@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from selfsense.chain.load import STRESS_MIN_DEN, stress_columns, stress_voltage, stress_weight
+from selfsense.chain.load import choose_load_ridge, stress_columns, stress_load, stress_voltage, stress_weight
 from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case
 from selfsense.gap.blindsim import simulate_family_case
 from selfsense.gap.counterfactual import _summary, tip_table
@@ -21,24 +21,45 @@ S_TRUE = CASE["effects"]["load.stress_hysteresis"] * 0.1 / 0.1   # library magni
 
 
 def test_the_closed_form_solves_the_force_row_and_the_stress_together():
-    """V_p = Vp0 - w f and f = B21 Q + B22 V_p hold together on every sample where the denominator is above its
-    floor; the weight is s_H (H - a_H) + s_Q (Q - a_Q); the columns vanish on a free tip."""
+    """V_p = Vp0 - w f and f = B21 Q + B22 V_p hold together on every sample whose solution lies in the force range,
+    whatever the sign of 1 + B22 w; elsewhere the load is the nearer bound of the range (never a division blown up
+    near 1 + B22 w = 0); the weight is s_H (H - a_H) + s_Q (Q - a_Q); the columns vanish on a free tip."""
     rng = np.random.default_rng(0)
-    n = 2000
+    n = 4000
     Q, Vp0, H = rng.uniform(0, 1e-4, n), rng.uniform(-5, 120, n), rng.uniform(-30, 40, n)
-    B21, B22 = -1.4e3, 1.9e-3
+    B21, B22 = -1.4e3, 4e-3
     w = stress_weight(H, Q, 15.0, -2e5, 3.0, 2e-5)
     np.testing.assert_allclose(w, 15.0 * (H - 3.0) - 2e5 * (Q - 2e-5))
-    Vp = stress_voltage(Q, Vp0, w, B21, B22)
+    lo, hi = 0.0, 0.2
+    Vp = stress_voltage(Q, Vp0, w, B21, B22, lo, hi)
+    a, d = B21 * Q + B22 * Vp0, 1.0 + B22 * w
+    exact = a / d
+    inside = (exact >= lo) & (exact <= hi)
+    assert (d < 0).any() and (d > 0).any() and inside.mean() > 0.2 and (~inside).any(), \
+        "the test must exercise both signs of 1 + B22 w and both sides of the range"
     f = B21 * Q + B22 * Vp
-    ok = 1.0 + B22 * w > STRESS_MIN_DEN
-    assert ok.mean() > 0.5 and (~ok).any(), "the test must exercise the floor too"
-    np.testing.assert_allclose(Vp[ok], Vp0[ok] - w[ok] * f[ok], rtol=0, atol=1e-9)
-    # at the floor the force is the one of the held denominator, never a sign flip of 1 + b
-    a = B21 * Q + B22 * Vp0
-    np.testing.assert_allclose(Vp[~ok], Vp0[~ok] - w[~ok] * a[~ok] / STRESS_MIN_DEN)
+    np.testing.assert_allclose(Vp[inside], Vp0[inside] - w[inside] * f[inside], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(f[inside], exact[inside], rtol=1e-9)
+    held = np.where(exact < lo, lo, hi)[~inside]
+    np.testing.assert_allclose(Vp[~inside], Vp0[~inside] - w[~inside] * held)
+    assert np.all(stress_load(a, d, lo, hi) >= lo) and np.all(stress_load(a, d, lo, hi) <= hi)
+    # 1 + B22 w = 0: the row holds for any load; never NaN; with a ridge the load is the least-squares one,
+    # a d / (d^2 + ridge), shrunk towards 0 where d is small and equal to a / d where d^2 >> ridge
+    assert stress_load(np.array([1.0, -1.0, 0.0]), np.zeros(3), lo, hi).tolist() == [lo, lo, lo]
+    r = 0.03
+    fr = stress_load(a, d, -np.inf, np.inf, r)
+    np.testing.assert_allclose(fr, a * d / (d * d + r))
+    big = np.abs(d) > 1.5
+    np.testing.assert_allclose(fr[big], exact[big], rtol=0.02)
+    small = np.abs(d) < 0.05
+    assert small.any() and np.all(np.abs(fr[small]) < np.abs(exact[small]))
+    # the ridge chosen on rows where the load is known: exact data pick no ridge, a row's noise near d = 0 a ridge
+    f_true = rng.uniform(lo, hi, n)
+    assert choose_load_ridge([(f_true * d, d, f_true)], lo, hi)[0] == 0.0
+    noisy = f_true * d + rng.normal(0, 0.02, n)
+    assert choose_load_ridge([(noisy, d, f_true)], lo, hi)[0] > 0.0
     np.testing.assert_array_equal(stress_columns(H, Q, np.zeros(n)), 0.0)
-    np.testing.assert_array_equal(stress_voltage(Q, Vp0, np.zeros(n), B21, B22), Vp0)
+    np.testing.assert_array_equal(stress_voltage(Q, Vp0, np.zeros(n), B21, B22, lo, hi), Vp0)
 
 
 @pytest.fixture(scope="module")

@@ -94,11 +94,12 @@ def models(tmp_path_factory):
         k = len(dev) // 2
         i_max = float(np.max(np.abs(np.diff(cal["q"].to_numpy()) / np.diff(cal["t"].to_numpy()))))
         est.quantiser_ = {"applied": True, "half_step_v": 0.5 * (dev[k] + dev[k + 1]), "i_q_a": 0.01 * i_max}
-        # the load link's stress member: H scaled by 1 + s_H f (20 % at the largest calibrated force) and a Q f term
+        # the load link's stress member: H scaled by 1 + s_H f (20 % at the largest calibrated force) and a Q f term,
+        # its load solved with a ridge
         fmax = max(est.ranges_["f"][1], 1e-9)
         qmax = float(np.max(np.abs(sigs["cal_free"]["q"].to_numpy())))
         est.stress_ = {"applied": True, "s_h_per_n": 0.2 / fmax, "s_q_v_per_c_n": 1.0 / (qmax * fmax),
-                       "a_h_v": 0.5, "a_q_c": 0.3 * qmax}
+                       "a_h_v": 0.5, "a_q_c": 0.3 * qmax, "load_ridge": 0.03}
         est.config.dc_offset = est.config.dc_offset_force = True
         out[name] = est
     h = out["modified_pi (thesis)"].hysteresis_   # a model file written before ModifiedPIH holds a GaugedH

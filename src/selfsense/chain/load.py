@@ -30,20 +30,30 @@ blocked-CV error of the reference model by more than :data:`STRESS_MIN_GAIN`.
 
 **Estimation.** Off the calibration trials ``f`` is what is being estimated. The force row of the two-port model is
 linear in ``(Q, V_p)`` (thesis eq. 46 / 52: ``f = B21 Q + B22 V_p``) and ``V_p = V - H(q) - w f``; with
-``a = B21 Q + B22 (V - H(q))`` and ``b = B22 w`` the two give ``f = a / (1 + b)`` in closed form, sample by sample,
-in batch and in a stream alike (:func:`stress_voltage`). Where ``1 + b`` would fall below :data:`STRESS_MIN_DEN` (a
-load far outside the calibration's, where the first-order form no longer holds) the denominator is held there.
+``a = B21 Q + B22 (V - H(q))`` and ``d = 1 + B22 w`` the two give ``f d = a``, solved sample by sample, in batch
+and in a stream alike (:func:`stress_voltage`), kept within the calibration references' force range
+``[f_lo, f_hi]`` (the range the estimate is limited to, ``SelfSensingEstimator.ranges_``). ``d`` is not near 1 in
+general: ``B22 w`` is the change of the force row per newton of load through the stress (the loop gain of the
+inversion), and a strong stress dependence takes it through -1 inside the operating range. There ``f d = a`` holds
+for any ``f``: V and Q do not determine the load, and ``a / d`` is the division of two small numbers. The load is
+therefore the least-squares solution with a ridge on the load, ``a d / (d^2 + r)`` (:func:`stress_load`), ``r``
+chosen from a fixed grid on the calibration trials, where the load is known (0 on a free tip, the force reference on
+a loaded one: :func:`choose_load_ridge`; no validation reference is read). Measured on the tip cases of the gap
+campaign that have the effect (seed 20261206, development cases; ``benchmarks/gap_tip/stress_solve_20261206.md``):
+on Preisach case 104 (stress 11 % of ``V_H`` per 0.1 N, ``B22 w`` from -3.3 to 2.5) the first form, ``d`` held at 0.5
+or above, made the member give back 2.75 of the effect's 12.59 points of Table 3, and 9.69 with the ridge; the load
+kept in the range without a ridge gave 8.79 there but ran away on Preisach case 124 (Table 3 36.8 points worse; 1.87
+points better with the ridge).
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["STRESS_MIN_GAIN", "STRESS_MIN_DEN", "stress_columns", "stress_weight", "stress_voltage"]
+__all__ = ["STRESS_MIN_GAIN", "LOAD_RIDGE_GRID", "stress_columns", "stress_weight", "stress_load", "stress_voltage",
+           "choose_load_ridge"]
 
 #: the stress column must lower the calibration rows' blocked-CV error by more than this fraction to be adopted
 STRESS_MIN_GAIN = 0.01
-#: the closed form's denominator ``1 + B22 w`` is held at or above this value
-STRESS_MIN_DEN = 0.5
 
 
 def stress_columns(H0, Q, f) -> np.ndarray:
@@ -58,14 +68,40 @@ def stress_weight(H, Q, s_h: float, s_q: float, a_h: float = 0.0, a_q: float = 0
     return s_h * (np.asarray(H, dtype=float) - a_h) + s_q * (np.asarray(Q, dtype=float) - a_q)
 
 
-def stress_voltage(Q, Vp0, w, B21: float, B22: float) -> np.ndarray:
-    """``V_p`` with the stress member: ``Vp0 - w f`` with ``f = a / max(1 + B22 w, STRESS_MIN_DEN)``,
-    ``a = B21 Q + B22 Vp0`` (``Vp0 = V - H(q)``, thesis eq. 27 without the member; ``w`` from :func:`stress_weight`).
-    The force row ``B21 Q + B22 V_p`` of the returned ``V_p`` is the force the stress was evaluated at (up to the
-    denominator's floor)."""
+#: the ridge grid of the load solve (:func:`stress_load`), chosen on the calibration trials (:func:`choose_load_ridge`)
+LOAD_RIDGE_GRID = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
+
+
+def stress_load(a, d, f_lo: float, f_hi: float, ridge: float = 0.0):
+    """The load that solves the force row with the stress member, ``f d = a`` (``a = B21 Q + B22 (V - H(q))``,
+    ``d = 1 + B22 w``), in the least-squares sense with a ridge on the load, ``argmin (f d - a)^2 + ridge f^2 =
+    a d / (d^2 + ridge)``, kept in ``[f_lo, f_hi]``. With ``ridge`` 0 it is ``a / d``; where ``d`` nears 0 the row
+    no longer determines the load and the ridge takes it towards 0 instead of dividing two small numbers (where
+    ``d^2 + ridge`` is exactly 0 the load is 0, then held in the range). Scalars or arrays."""
+    a = np.asarray(a, dtype=float)
+    d = np.asarray(d, dtype=float)
+    den = d * d + ridge
+    return np.minimum(np.maximum(a * d / np.where(den == 0.0, 1.0, den), f_lo), f_hi)
+
+
+def stress_voltage(Q, Vp0, w, B21: float, B22: float, f_lo: float, f_hi: float, ridge: float = 0.0) -> np.ndarray:
+    """``V_p`` with the stress member: ``Vp0 - w f`` with ``f`` the load of :func:`stress_load`
+    (``a = B21 Q + B22 Vp0``, ``Vp0 = V - H(q)``, thesis eq. 27 without the member; ``w`` from :func:`stress_weight`;
+    ``[f_lo, f_hi]`` the calibration references' force range). With ``ridge`` 0, wherever ``f`` is inside the range,
+    the force row ``B21 Q + B22 V_p`` of the returned ``V_p`` is ``f``."""
     Q = np.asarray(Q, dtype=float)
     Vp0 = np.asarray(Vp0, dtype=float)
     w = np.asarray(w, dtype=float)
-    a = B21 * Q + B22 * Vp0
-    den = np.maximum(1.0 + B22 * w, STRESS_MIN_DEN)
-    return Vp0 - w * (a / den)
+    f = stress_load(B21 * Q + B22 * Vp0, 1.0 + B22 * w, f_lo, f_hi, ridge)
+    return Vp0 - w * f
+
+
+def choose_load_ridge(rows, f_lo: float, f_hi: float, grid=LOAD_RIDGE_GRID) -> tuple[float, list[float]]:
+    """The ridge of :func:`stress_load` from the calibration trials, where the load is known (0 on a free tip, the
+    force reference on a loaded one): ``rows`` holds per trial ``(a, d, f_known)``; the score of a ridge is the mean
+    over the trials of the mean ``|f - f_known|`` over the range ``f_hi - f_lo``; the smallest score wins (the first
+    on a tie). Returns the ridge and the scores over ``grid``. No validation reference is read."""
+    span = max(f_hi - f_lo, np.finfo(float).tiny)
+    scores = [float(np.mean([np.mean(np.abs(stress_load(a, d, f_lo, f_hi, r) - fk)) / span for a, d, fk in rows]))
+              for r in grid]
+    return float(grid[int(np.argmin(scores))]), scores

@@ -1732,7 +1732,34 @@ class SelfSensingEstimator:
         }
         self.fit_report_["charge_resolution"] = self.charge_resolution(trials, meta)
         self.fit_report_["h_error_cost"] = self.h_error_cost()
+        if any(self.stress_weights()):
+            self._stress_load_ridge(cal_trials, cal)
         return self
+
+    def _stress_load_ridge(self, cal_trials, cal) -> None:
+        """The ridge of the stress member's load solve (:func:`selfsense.chain.load.choose_load_ridge`), chosen on the
+        calibration trials whose load is known (free tip: 0; force reference: its load) with the fitted
+        coefficients; recorded in :attr:`stress_` with the scores of the grid."""
+        from selfsense.chain.load import LOAD_RIDGE_GRID, choose_load_ridge, stress_weight
+
+        s_h, s_q = self.stress_weights()
+        c = self.coef_
+        rows = []
+        for tid, row in cal.iterrows():
+            if not (row["tip"] == "free" or row["reference"] == "force"):
+                continue
+            df = cal_trials[tid]
+            m = df["relay"].to_numpy() < 0.5
+            Q = self._charge(df)
+            H = self._h(Q, df)
+            Vp0 = piezo_voltage(df["V"].to_numpy(dtype=float), H)
+            w = stress_weight(H, Q, s_h, s_q, *self.stress_offsets())
+            fk = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force"
+                  else np.zeros(len(df)))
+            rows.append(((c["B21"] * Q + c["B22"] * Vp0)[m], (1.0 + c["B22"] * w)[m], fk[m]))
+        ridge, scores = choose_load_ridge(rows, *self.ranges_["f"])
+        self.stress_.update({"load_ridge": ridge, "load_ridge_grid": list(LOAD_RIDGE_GRID),
+                             "load_ridge_scores": scores})
 
     def h_error_cost(self) -> dict:
         """What the error of H(q) costs the tip estimates, from the calibration alone: ``V_p = V - H(q)`` (thesis
@@ -1858,7 +1885,8 @@ class SelfSensingEstimator:
     def _regressors(self, df: pd.DataFrame, f: np.ndarray | None = None) -> np.ndarray:
         """``[Q, V_p]`` of a trial (thesis eq. 27). With the stress member (:mod:`selfsense.chain.load`) ``V_p`` also
         loses ``w f`` (``w = s_H (H(q) - a_H) + s_Q (Q - a_Q)``): ``f`` given (a calibration trial's known load: its
-        force reference, 0 on a free tip), or else solved with the force row in closed form
+        force reference, 0 on a free tip), or else solved with the force row in closed form (its ridge chosen on the
+        calibration trials) within the calibration references' force range
         (:func:`~selfsense.chain.load.stress_voltage`)."""
         Q = self._charge(df)
         H = self._h(Q, df)
@@ -1868,13 +1896,18 @@ class SelfSensingEstimator:
             from selfsense.chain.load import stress_voltage, stress_weight
 
             w = stress_weight(H, Q, s_h, s_q, *self.stress_offsets())
-            V_p = V_p - w * f if f is not None else stress_voltage(Q, V_p, w, self.coef_["B21"], self.coef_["B22"])
+            V_p = V_p - w * f if f is not None else stress_voltage(Q, V_p, w, self.coef_["B21"], self.coef_["B22"],
+                                                                   *self.ranges_["f"], self.stress_ridge())
         return np.column_stack([Q, V_p])
 
     def stress_offsets(self) -> tuple[float, float]:
         """The stress member's ``(a_H [V], a_Q [C])``: the stress columns' parts along ``f`` (chain.load)."""
         st = self.stress_ or {}
         return float(st.get("a_h_v", 0.0)), float(st.get("a_q_c", 0.0))
+
+    def stress_ridge(self) -> float:
+        """The ridge of the stress member's load solve (:func:`selfsense.chain.load.stress_load`; 0 where not chosen)."""
+        return float((self.stress_ or {}).get("load_ridge", 0.0))
 
     def stress_weights(self) -> tuple[float, float]:
         """The stress member's ``(s_H [1/N], s_Q [V/(C N)])`` (``V_H = H(q) + (s_H (H(q) - a_H) + s_Q (Q - a_Q)) f``,

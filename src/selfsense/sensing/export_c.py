@@ -35,7 +35,6 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from selfsense.chain.load import STRESS_MIN_DEN
 
 __all__ = ["export_c", "ExportError", "c_sources"]
 
@@ -189,10 +188,11 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     st = h_step(s, q, &VH);
     if (st != SS_OK) return st;
     Vp = V - VH;
-    if (KS_H != 0.0 || KS_Q != 0.0) {  /* stress member: V_p - w f, f in closed form */
-        double w = KS_H * (VH - KS_AH) + KS_Q * (q - KS_AQ), a = B21 * q + B22 * Vp, den = 1.0 + B22 * w;
-        if (den < STRESS_MIN_DEN) den = STRESS_MIN_DEN;
-        Vp = Vp - w * (a / den);
+    if (KS_H != 0.0 || KS_Q != 0.0) {  /* stress member: V_p - w f, f in closed form (ridge) within [F_LO, F_HI] */
+        double w = KS_H * (VH - KS_AH) + KS_Q * (q - KS_AQ), a = B21 * q + B22 * Vp, d = 1.0 + B22 * w;
+        double den = d * d + KS_RIDGE, fl = den != 0.0 ? a * d / den : 0.0;
+        fl = fl < F_LO ? F_LO : (fl > F_HI ? F_HI : fl);
+        Vp = Vp - w * fl;
     }
     if (shorted) { dxr = 0.0; fr = 0.0; }
     else { dxr = A1 * q + A2 * Vp + DX0; fr = B21 * q + B22 * Vp + 0.0; }
@@ -502,7 +502,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         "Q_HALF": float(qz["half_step_v"]) if qz.get("applied") else 0.0,
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
         "KS_H": s_h, "KS_Q": s_q, "KS_AH": a_h, "KS_AQ": a_q,
-        "STRESS_MIN_DEN": STRESS_MIN_DEN,
+        "KS_RIDGE": est.stress_ridge() if hasattr(est, "stress_ridge") else 0.0,
         "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],
         "F_HI": est.ranges_["f"][1],

@@ -27,7 +27,8 @@ each carry their state (O(1) memory per sample):
    ``sign * (G[Q] - c Q)``), ``RICreepH`` and ``RIModel`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11). Batch
    evaluation is the same code fed one block, so the stream equals it on any split of the samples.
 3. **Back** (one compiled loop, :func:`back_kernel`): ``V_p = V - V_H`` (eq. 27), less ``w f`` with the load
-   link's stress member (``f`` from the force row in closed form, :func:`selfsense.chain.load.stress_voltage`);
+   link's stress member (``f`` from the force row in closed form with its ridge, kept in the calibrated force
+   range, :func:`selfsense.chain.load.stress_load`);
    ``dx_raw = A1 Q + A2 V_p + dx0``
    (the rest offset member), ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted (the kernels of
    ``selfsense.sensing.core``, which the batch estimator evaluates on arrays); sliding DC offset (thesis sec. 5.2,
@@ -51,7 +52,6 @@ from typing import Any, Mapping
 import numpy as np
 from numba import njit
 
-from selfsense.chain.load import STRESS_MIN_DEN
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
 __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "stream_kinds"]
@@ -66,7 +66,7 @@ _F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH = range(8)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 (_B_A1, _B_A2, _B_B21, _B_B22, _B_DX0, _B_ZL, _B_DXLO, _B_DXHI, _B_FLO, _B_FHI, _B_DCDX, _B_DCF,
- _B_LIMIT, _B_KSH, _B_KSQ, _B_AH, _B_AQ) = range(17)
+ _B_LIMIT, _B_KSH, _B_KSQ, _B_AH, _B_AQ, _B_KRG) = range(18)
 
 # status codes returned by the kernels
 _OK = 0
@@ -191,11 +191,13 @@ def back_kernel(P, S, u, relay, q, V, VH, dx_out, f_out, aux):
         Vp = _piezo_voltage(V[k], VH[k])
         if P[_B_KSH] != 0.0 or P[_B_KSQ] != 0.0:
             # load link's stress member: V_p - w f, w = s_H (V_H - a_H) + s_Q (Q - a_Q), f from the force row in
-            # closed form (chain.load.stress_voltage)
+            # closed form with its ridge, within the force range (chain.load.stress_load)
             w = P[_B_KSH] * (VH[k] - P[_B_AH]) + P[_B_KSQ] * (q[k] - P[_B_AQ])
             a = P[_B_B21] * q[k] + P[_B_B22] * Vp
-            den = max(1.0 + P[_B_B22] * w, STRESS_MIN_DEN)
-            Vp = Vp - w * (a / den)
+            d = 1.0 + P[_B_B22] * w
+            den = d * d + P[_B_KRG]
+            fl = a * d / den if den != 0.0 else 0.0
+            Vp = Vp - w * min(max(fl, P[_B_FLO]), P[_B_FHI])
         if shorted:
             dxr = 0.0
             fr = 0.0
@@ -558,7 +560,7 @@ class SelfSensingStream:
             cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
             estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit)),
-            *estimator.stress_weights(), *estimator.stress_offsets()], dtype=float)
+            *estimator.stress_weights(), *estimator.stress_offsets(), estimator.stress_ridge()], dtype=float)
         self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
         self._buf = {k: np.zeros(1) for k in ("u", "v", "r", "t", "q", "V", "qm", "ts", "dx", "f")}
         self._buf["aux"] = np.empty((0, 4))
