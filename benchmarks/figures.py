@@ -48,6 +48,8 @@ DATES = {
     "gap_stages_20261207": "2026-12-02",
     "stress_first_20261206": "2026-12-02",
     "stress_wide_20261206": "2026-12-02",
+    "stress_solve_20261206": "2026-12-03",
+    "stress_first_20261208": "2026-12-03",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -151,6 +153,10 @@ COMMANDS = {
                              "--jobs 1 --campaign none --out benchmarks/gap_tip/stress_first_20261206.md",
     "stress_wide_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 104 --jobs 1 --campaign none "
                             "--out benchmarks/gap_tip/stress_wide_20261206.md",
+    "stress_solve_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
+                             "--jobs 2 --campaign none --out benchmarks/gap_tip/stress_solve_20261206.md",
+    "stress_first_20261208": "python benchmarks/tip_cases.py --seed 20261208 --cases 39,40,43,64,65,66,86,91,106,132 "
+                             "--jobs 2 --campaign none --out benchmarks/gap_tip/stress_first_20261208.md",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     # the tip tier after the simulator's stress fix, with a carried chain member scored by its own contribution
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
@@ -838,7 +844,11 @@ def gap_figures() -> list[Fig]:
     for key, what in (("stress_first_20261206", "the stress member forced on identified with the H(q) selection "
                        "(first contact: 8 load.stress_hysteresis tip cases of a seed not used before)"),
                       ("stress_wide_20261206", "the same seed's costly case the narrow blocked form left unnamed, "
-                       "with the wider form (first contact of the form)")):
+                       "with the wider form (first contact of the form)"),
+                      ("stress_solve_20261206", "the same 8 cases with the member's load solved with a ridge chosen "
+                       "on the calibration trials (development cases of the solve)"),
+                      ("stress_first_20261208", "the ridge load solve at first contact (the first 10 "
+                       "load.stress_hysteresis tip cases of a seed not used before)")):
         src_ = f"benchmarks/gap_tip/{key}.jsonl.gz"
         if not (ROOT / src_).exists():
             continue
