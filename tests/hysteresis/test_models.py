@@ -432,6 +432,18 @@ def test_held_form_without_cv_is_the_model_the_cv_selects_bit_for_bit():
         select_h_model(qs, y, DT, candidates=form + (("pi", {"n_play": 6}),), cv=False)
 
 
+def _full_and_pruned(qs, y, extras, cands):
+    """The full and the pruned selection of ``cands`` on the same rows, checked to select the same model bit for bit
+    (row, coefficients, extra coefficients, warnings); returns both and the selected row."""
+    full = select_h_model(qs, y, DT, extras=extras, candidates=cands)
+    pruned = select_h_model(qs, y, DT, extras=extras, candidates=cands, prune=True)
+    best = next(r for r in full.table if r["selected"])
+    assert next(r for r in pruned.table if r["selected"]) == best
+    assert pruned.model.coef_.tobytes() == full.model.coef_.tobytes()
+    assert pruned.extra_coef.tobytes() == full.extra_coef.tobytes() and pruned.warnings == full.warnings
+    return full, pruned, best
+
+
 def test_pruned_selection_selects_the_same_model_bit_for_bit():
     """select_h_model(prune=True) (the gap diagnostic's recalibrations): a candidate fitted fold by fold (the Duhem
     form, the modified PI) is stopped once its folds done exceed the best convex candidate's mean; the selected model,
@@ -441,12 +453,7 @@ def test_pruned_selection_selects_the_same_model_bit_for_bit():
     qs, y, extras, _ = _rows_case()
     cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}),
              ("modified_pi", {"n_play": 6, "n_sup": 3, "n_creep": 2}), ("duhem", {"degree": 2, "ridge": 1e-7}))
-    full = select_h_model(qs, y, DT, extras=extras, candidates=cands)
-    pruned = select_h_model(qs, y, DT, extras=extras, candidates=cands, prune=True)
-    best = next(r for r in full.table if r["selected"])
-    assert next(r for r in pruned.table if r["selected"]) == best
-    assert pruned.model.coef_.tobytes() == full.model.coef_.tobytes()
-    assert pruned.extra_coef.tobytes() == full.extra_coef.tobytes() and pruned.warnings == full.warnings
+    full, pruned, best = _full_and_pruned(qs, y, extras, cands)
     stopped = [r for r in pruned.table if r["status"] == PRUNED_STATUS]
     assert {r["kind"] for r in stopped} == {"modified_pi", "duhem"}
     for r in stopped:   # the folds done are the full selection's; they already put its mean above the best's
@@ -526,12 +533,7 @@ def test_pruned_selection_stops_a_linear_candidate_on_its_blocks_own_residuals()
     qs, y, extras, _ = _rows_case()
     cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("preisach", {"n_grid": 6, "n_play": 3}),
              ("preisach", {"n_grid": 2, "n_play": 0, "creep": False}))
-    full = select_h_model(qs, y, DT, extras=extras, candidates=cands)
-    pruned = select_h_model(qs, y, DT, extras=extras, candidates=cands, prune=True)
-    best = next(r for r in full.table if r["selected"])
-    assert next(r for r in pruned.table if r["selected"]) == best
-    assert pruned.model.coef_.tobytes() == full.model.coef_.tobytes()
-    assert pruned.extra_coef.tobytes() == full.extra_coef.tobytes() and pruned.warnings == full.warnings
+    full, pruned, best = _full_and_pruned(qs, y, extras, cands)
     assert [r["status"] for r in pruned.table][-1] == PRUNED_BLOCKS_STATUS
     assert full.table[-1]["cv_rms_mean_v"] > best["cv_rms_mean_v"]
     assert pruned.table[:-1] == full.table[:-1]
