@@ -50,6 +50,8 @@ DATES = {
     "stress_wide_20261206": "2026-12-02",
     "stress_solve_20261206": "2026-12-03",
     "stress_first_20261208": "2026-12-03",
+    "creep_member_8080": "2026-12-03",
+    "creep_member_first_20261209": "2026-12-03",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -155,6 +157,11 @@ COMMANDS = {
                             "--out benchmarks/gap_tip/stress_wide_20261206.md",
     "stress_solve_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
                              "--jobs 2 --campaign none --out benchmarks/gap_tip/stress_solve_20261206.md",
+    "creep_member_8080": "python benchmarks/creep_member.py --seed 8080 --cases 25,33,99,155,188,271,316 --jobs 2 "
+                         "--out benchmarks/gap_tip/creep_member_8080.md",
+    "creep_member_first_20261209": "python benchmarks/creep_member.py --seed 20261209 --cases "
+                                   "29,32,43,46,87,97,107,119 --jobs 2 "
+                                   "--out benchmarks/gap_tip/creep_member_first_20261209.md",
     "stress_first_20261208": "python benchmarks/tip_cases.py --seed 20261208 --cases 39,40,43,64,65,66,86,91,106,132 "
                              "--jobs 2 --campaign none --out benchmarks/gap_tip/stress_first_20261208.md",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
@@ -867,6 +874,25 @@ def gap_figures() -> list[Fig]:
                        _met(sum(r["top"] == e for r in costly) >= 0.9 * len(costly) and bool(errs)
                             and statistics.median(errs) <= 0.35), src_,
                        COMMANDS[key], DATES[key]))
+    for key, what in (("creep_member_8080", "development cases (7 slow.creep tip cases of seed 8080)"),
+                      ("creep_member_first_20261209", "first contact (the first 8 slow.creep tip cases of a seed not "
+                       "used before)")):
+        src_ = f"benchmarks/gap_tip/{key}.jsonl"
+        if not (ROOT / src_).exists():
+            continue
+        rs = [json.loads(x) for x in (ROOT / src_).read_text().splitlines() if x.strip()]
+
+        def med(k, rs=rs):
+            return statistics.median(r["table3_disp"][k] for r in rs)
+
+        out.append(Fig(f"charge-free creep, measured before a creep member is built, {what}: displacement Table 3 "
+                       "of the contact validation trials, median: default estimator; a creep bank on Q and V_p "
+                       "(default / offset-drift member off); effect-free twin (default / offset-drift off); cases "
+                       "where the offset-drift member is adopted",
+                       f"{med('case_default'):.2f} %; {med('member_default'):.2f} / {med('member_drift_off'):.2f} %; "
+                       f"{med('twin_default'):.2f} / {med('twin_drift_off'):.2f} %; "
+                       f"{sum(r['member']['offset_drift_adopted_default'] for r in rs)} of {len(rs)}",
+                       "", "measured", src_, COMMANDS[key], DATES[key]))
     nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
     if (ROOT / nsrc_).exists():
         nl = [json.loads(x) for x in gzip.open(ROOT / nsrc_, "rt")]

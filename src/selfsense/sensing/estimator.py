@@ -1750,9 +1750,7 @@ class SelfSensingEstimator:
                 continue
             df = cal_trials[tid]
             m = df["relay"].to_numpy() < 0.5
-            Q = self._charge(df)
-            H = self._h(Q, df)
-            Vp0 = piezo_voltage(df["V"].to_numpy(dtype=float), H)
+            Q, H, Vp0 = self._charge_h_vp(df)
             w = stress_weight(H, Q, s_h, s_q, *self.stress_offsets())
             fk = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force"
                   else np.zeros(len(df)))
@@ -1882,15 +1880,20 @@ class SelfSensingEstimator:
         self.ranges_ = {"dx": [min(dx_min, 0.0), max(dx_max, 0.0)], "f": [0.0, max(f_max, 0.0)]}
 
     # ------------------------------------------------------------------ helpers
+    def _charge_h_vp(self, df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(Q, H(Q), V_p)`` of a trial with its links applied: the charge, the hysteresis voltage and the piezo
+        voltage ``V - H(Q)`` (thesis eq. 27) before the stress member's load term."""
+        Q = self._charge(df)
+        H = self._h(Q, df)
+        return Q, H, piezo_voltage(df["V"].to_numpy(dtype=float), H)
+
     def _regressors(self, df: pd.DataFrame, f: np.ndarray | None = None) -> np.ndarray:
         """``[Q, V_p]`` of a trial (thesis eq. 27). With the stress member (:mod:`selfsense.chain.load`) ``V_p`` also
         loses ``w f`` (``w = s_H (H(q) - a_H) + s_Q (Q - a_Q)``): ``f`` given (a calibration trial's known load: its
         force reference, 0 on a free tip), or else solved with the force row in closed form (its ridge chosen on the
         calibration trials) within the calibration references' force range
         (:func:`~selfsense.chain.load.stress_voltage`)."""
-        Q = self._charge(df)
-        H = self._h(Q, df)
-        V_p = piezo_voltage(df["V"].to_numpy(dtype=float), H)   # thesis eq. (27)
+        Q, H, V_p = self._charge_h_vp(df)
         s_h, s_q = self.stress_weights()
         if s_h or s_q:
             from selfsense.chain.load import stress_voltage, stress_weight
