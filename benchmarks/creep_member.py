@@ -50,18 +50,12 @@ def _simulate(c: dict, effects: dict):
                                 with_truth=True)
 
 
-def _lp(x, tau: float, dt: float):
-    """First-order low-pass from rest, exact for piecewise-constant input (``selfsense.gap.stages.lp``)."""
-    from scipy.signal import lfilter
-
-    a = float(np.exp(-dt / tau))
-    return lfilter([1.0 - a], [1.0, -a], np.asarray(x, float))
-
-
 def _bank(q, vp, dt: float, bank=BANK_S):
     """``[Q, V_p, LP_tau[Q] - Q, LP_tau[V_p] - V_p for tau in bank]``: the two-port (thesis eq. 52) with a creep bank
     on each of its signals (the charge-free creep strain follows the elastic strain, a combination of both)."""
-    return np.column_stack([q, vp] + [_lp(v, tau, dt) - v for tau in bank for v in (q, vp)])
+    from selfsense.gap.stages import lp
+
+    return np.column_stack([q, vp] + [lp(v, tau, dt) - v for tau in bank for v in (q, vp)])
 
 
 def _fit_bank(trials, me, signals):
