@@ -133,13 +133,13 @@ def _one(args) -> dict:
         member[f"cv_ratio_{key}"] = ratio
         member[f"offset_drift_adopted_{key}"] = bool(est.offset_drift_)
         if not drift_off:
-            est0 = est
+            X_default = X
 
     # the same bank on the simulator's own actuator charge and piezo voltage, and with the default estimator's charge
     # in place of the true one: where the member's error comes from
     def truth_error(charge: str) -> float:
         def sig(t):
-            q = truth[t]["q_act"].to_numpy(float) if charge == "true" else est0._regressors(est0._with_links(tr[t]))[:, 0]
+            q = truth[t]["q_act"].to_numpy(float) if charge == "true" else X_default[t][:, 0]
             return q, truth[t]["V_p"].to_numpy(float)
 
         w, _ = _fit_bank(tr, me, sig)
