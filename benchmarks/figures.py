@@ -886,7 +886,8 @@ def gap_figures() -> list[Fig]:
             return statistics.median(r["table3_disp"][k] for r in rs)
 
         out.append(Fig(f"charge-free creep, measured before a creep member is built, {what}: displacement Table 3 "
-                       "of the contact validation trials, median: default estimator; a creep bank on Q and V_p "
+                       "of the contact validation trials (the tip tier's four calibration trials, not the thesis protocol), median: "
+                       "default estimator; a creep bank on Q and V_p "
                        "(default / offset-drift member off); effect-free twin (default / offset-drift off); cases "
                        "where the offset-drift member is adopted",
                        f"{med('case_default'):.2f} %; {med('member_default'):.2f} / {med('member_drift_off'):.2f} %; "
