@@ -21,6 +21,12 @@ half of Table 3 (validation trials, mean |error| in % of the reference range):
 - where the member's error comes from: the same bank fitted on the simulator's own actuator charge and piezo voltage
   (the simulator's truth), and with the default estimator's charge in place of the true one, scored against the
   simulated tip.
+
+``--member`` scores the member as it was then built into the estimator (``selfsense.chain.creep``, config
+``tip_creep``) instead, on the case and its twin, force as well as displacement::
+
+    python benchmarks/creep_member.py --member --seed 20261210 --cases 3,16,35,64,81,85,93,96 --jobs 2 \\
+        --out benchmarks/gap_tip/creep_member_built_first_20261210.md
 """
 from __future__ import annotations
 
@@ -157,18 +163,81 @@ def _one(args) -> dict:
             "table3_disp": out, "member": member}
 
 
+def _one_member(args) -> dict:
+    """``--member``: the estimator's creep member (``selfsense.chain.creep``, ``tip_creep``) as built, on the case
+    and its effect-free twin: the default estimator with the member forced off against the default (``auto``)."""
+    from selfsense.gap.blind import draw_tip_case
+    from selfsense.gap.counterfactual import _summary, tip_table
+    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+
+    i, seed = args
+    c = draw_tip_case(i, seed)
+    (name,), (mag,) = c["effects"], c["effects"].values()
+    if name != "slow.creep":
+        raise ValueError(f"case {i} of seed {seed} is a {name} case, not slow.creep")
+    out = {"case": i, "seed": seed, "family": c["family"], "magnitude": float(mag), "creep_m": float(mag) * 0.02}
+    for lab, eff in (("case", c["effects"]), ("twin", {})):
+        tr, me, rig, _ = _simulate(c, eff)
+        for mode in ("off", "auto"):
+            est = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"tip_creep": mode}).fit(tr, me)
+            s = _summary(tip_table(tr, me, rig, None, estimator=est))
+            tc = est.tip_creep_
+            out[f"{lab}_{mode}"] = {
+                "displacement": float(s["displacement"]), "force": float(s["force"]),
+                "tip_creep": bool(tc.get("applied")), "offset_drift": bool(est.offset_drift_),
+                "cv_ratio": (float(tc["cv_rms_m_with"] / tc["cv_rms_m_without"]) if "cv_rms_m_with" in tc else None),
+                "offset_drift_dropped": bool(tc.get("offset_drift_check") and
+                                             not tc["offset_drift_check"]["offset_drift_kept"])}
+    return out
+
+
+def _member_table(recs: list, cmd: str) -> list:
+    lines = ["# Charge-free creep: the estimator's creep member (tip_creep) on creep cases and their twins", "",
+             f"Command: `{cmd}` ({datetime.now(UTC):%Y-%m-%d})", "",
+             ("Table 3 of the validation trials (object contacts), displacement / force, % of range. \"off\": the "
+              "default estimator with the member forced off; \"auto\": the default (the member where the "
+              "calibration's blocked CV supports it; the offset-drift member re-decided beside it). Twin: the same "
+              "device, drive and noise without the creep."), "",
+             "| case | family | creep m | case, off | case, auto | member adopted (CV ratio) | offset drift dropped "
+             "| twin, off | twin, auto | member adopted on the twin (CV ratio) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def cell(x):
+        return f"{x['displacement']:.2f} / {x['force']:.2f}"
+
+    def ratio(x):
+        return f"{x['tip_creep']} ({x['cv_ratio']:.2f})" if x["cv_ratio"] is not None else str(x["tip_creep"])
+
+    for r in recs:
+        lines.append(f"| {r['case']} | {r['family']} | {r['creep_m']:.3f} | {cell(r['case_off'])} | "
+                     f"{cell(r['case_auto'])} | {ratio(r['case_auto'])} | {r['case_auto']['offset_drift_dropped']} | "
+                     f"{cell(r['twin_off'])} | {cell(r['twin_auto'])} | {ratio(r['twin_auto'])} |")
+    med = {k: (statistics.median(r[k]["displacement"] for r in recs), statistics.median(r[k]["force"] for r in recs))
+           for k in ("case_off", "case_auto", "twin_off", "twin_auto")}
+    lines += ["", "Medians (displacement / force): " + "; ".join(f"{k.replace('_', ', ')} {v[0]:.2f} / {v[1]:.2f} %"
+                                                                   for k, v in med.items()) + "."]
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--cases", type=int_ranges, required=True)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--member", action="store_true",
+                    help="score the estimator's creep member as built (tip_creep off against auto) on case and twin")
     a = ap.parse_args(argv)
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
-        recs = list(ex.map(_one, [(i, a.seed) for i in a.cases]))
+        recs = list(ex.map(_one_member if a.member else _one, [(i, a.seed) for i in a.cases]))
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.with_suffix(".jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in recs))
     cmd = "python benchmarks/creep_member.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    if a.member:
+        lines = _member_table(recs, cmd)
+        a.out.write_text("\n".join(lines) + "\n")
+        print("\n".join(lines))
+        return 0
     cols = [("case_default", "case"), ("member_default", "member"), ("twin_default", "twin"),
             ("case_drift_off", "case, drift off"), ("member_drift_off", "member, drift off"),
             ("twin_drift_off", "twin, drift off"), ("true_signals_bank", "bank on true Q, V_p"),

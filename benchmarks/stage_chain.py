@@ -76,6 +76,10 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "leakage_ns": float(est.leakage_s_ * 1e9),
             "leakage_source": d.get("source", "calibration" if d.get("applied") else "none"),
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
+            # the load link's charge-free creep member (chain.creep): adopted, and its blocked-CV ratio
+            "tip_creep": bool((est.tip_creep_ or {}).get("applied", False)),
+            "tip_creep_cv_ratio": (float(est.tip_creep_["cv_rms_m_with"] / est.tip_creep_["cv_rms_m_without"])
+                                   if "cv_rms_m_with" in (est.tip_creep_ or {}) else None),
             "h_selected": str(est.fit_report_["hysteresis"].get("selected", "")),
             "h_fit_rms_v": float(est.fit_report_["hysteresis"].get("rms_v", float("nan"))),
             "h_error_dx_pct": _number(est.fit_report_.get("h_error_cost", {}).get("dx_pct")),

@@ -17,7 +17,8 @@ A correction acts where the stage says the effect acts:
 
 Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset drift
 and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
-:mod:`selfsense.chain.amplifier`; the load link's stress-dependent hysteresis, :mod:`selfsense.chain.load`) are not
+:mod:`selfsense.chain.amplifier`; the load link's stress and charge-free creep members, :mod:`selfsense.chain.load`,
+:mod:`selfsense.chain.creep`) are not
 corrected with the stage's coefficients: the estimator is recalibrated with the member forced on, so that "how far it
 shrinks" is the error of the chain the user would get with that member, identified jointly with H(q) (the whole H(q)
 selection runs again, :func:`_make`) and the sensing coefficients. For a member the fitted estimator already carries
@@ -47,7 +48,7 @@ __all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "coun
 
 #: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
 CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier",
-                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress"}
+                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress", "slow.creep": "tip_creep"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -180,7 +181,8 @@ def adopted_members(fitted) -> dict:
             "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False)),
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
-            "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False))}
+            "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),
+            "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):

@@ -217,6 +217,13 @@ def _model_section(results_dir: Path) -> list[str]:
                     f"V/(C N)" if st.get("applied")
                     else "not applied")
                  + f", {html.escape(str(st['note']))}")
+    tc = d.get("tip_creep") or {}
+    if tc.get("note"):
+        od = tc.get("offset_drift_check") or {}
+        kind += (f"; charge-free creep strain (load link, a bank of lags on Q and V_p at both tip outputs, "
+                 f"displacement calibration rows, docs/method.md 6h): "
+                 f"{'carried' if tc.get('applied') else 'not applied'}, {html.escape(str(tc['note']))}"
+                 + (f"; {html.escape(str(od['note']))}" if od.get("note") else ""))
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"

@@ -57,7 +57,8 @@ H_MODELS = ("auto", "linear", "pi", "preisach", "ri", "modified_pi", "duhem")
 DRIFT = ("auto", "off")
 #: the chain members ``SelfSensingEstimator(members=...)`` can force: charge link (leakage, offset drift, absorption,
 #: quantiser), H link (hold rows), voltage link (amplifier), load link (stress: :mod:`selfsense.chain.load`)
-CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser", "stress")
+CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser", "stress",
+                      "tip_creep")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
 #: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
 N_DRIFT_ALTERNATIONS = 1
@@ -103,6 +104,10 @@ class SensingConfig:
     #: it, "off" never. Off by default: on the bundled dataset the member finds the simulator's stress (s_H 0.45 per
     #: N against 0.5) and makes the contact trials' displacement worse (docs/method.md 6f)
     stress: str = "off"
+    #: the load link's charge-free creep member (:mod:`selfsense.chain.creep`; not the creep of H(q), ``creep``): a
+    #: bank of lags on Q and V_p at both tip outputs, "auto" where it lowers the displacement calibration rows'
+    #: blocked-CV error by more than 10 %, "off" never
+    tip_creep: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -129,6 +134,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.quantiser: expected 'auto' or 'off', found {self.quantiser!r}")
         if self.stress not in ("auto", "off"):
             raise ValueError(f"SensingConfig.stress: expected 'auto' or 'off', found {self.stress!r}")
+        if self.tip_creep not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.tip_creep: expected 'auto' or 'off', found {self.tip_creep!r}")
         if self.offset_drift not in ("auto", "on", "off"):
             raise ValueError(f"SensingConfig.offset_drift: expected 'auto', 'on' or 'off', found {self.offset_drift!r}")
         if self.offset_drift == "on" and self.drift == "off":
@@ -153,8 +160,9 @@ class SensingConfig:
             raise ValueError(f"sensing config: unknown keys {unknown}; expected some of {sorted(known)}")
         if isinstance(cfg.get("offset_drift"), bool):   # YAML 1.1 reads an unquoted on / off as true / false
             cfg["offset_drift"] = "on" if cfg["offset_drift"] else "off"
-        if cfg.get("stress") is False:   # an unquoted off
-            cfg["stress"] = "off"
+        for k in ("stress", "tip_creep"):
+            if cfg.get(k) is False:   # an unquoted off
+                cfg[k] = "off"
         return cls(**cfg)
 
 
@@ -647,6 +655,9 @@ class SelfSensingEstimator:
     quantiser_: dict = field(default_factory=dict, init=False)
     #: the load link's stress member (:mod:`selfsense.chain.load`): V_H = H(q) + w f, whether applied and its weights
     stress_: dict = field(default_factory=dict, init=False)
+    #: the load link's charge-free creep member (:mod:`selfsense.chain.creep`): the bank's lags and coefficients,
+    #: whether applied
+    tip_creep_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -1022,7 +1033,8 @@ class SelfSensingEstimator:
         the ``members`` forced values, else the configuration's (``SensingConfig.offset_drift``), "auto" where
         neither forces one."""
         return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto"),
-                                           "stress": getattr(self.config, "stress", "off")})
+                                           "stress": getattr(self.config, "stress", "off"),
+                                           "tip_creep": getattr(self.config, "tip_creep", "auto")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -1659,43 +1671,59 @@ class SelfSensingEstimator:
         p = _rig_params(self.rig)
         n_A, C_p = p["n_A"], p["C_p"]
         cfg = self.config
-        # --- sensing coefficients, jointly over loading conditions
-        Xd, yd, Xf, yf = [], [], [], []
-        for tid, row in cal.iterrows():
-            df = cal_trials[tid]
-            m = (df["relay"].to_numpy() < 0.5) & self._voltage_observed(df)
-            # the calibration trial's load (stress member): its force reference, none on a free tip
-            f_load = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force" else
-                      np.zeros(len(df)))
-            feats = self._regressors(df, f_load)[m]
-            if row["reference"] == "displacement":
-                ok = np.isfinite(df["dx_ref"].to_numpy()[m])
-                Xd.append(feats[ok]); yd.append(df["dx_ref"].to_numpy()[m][ok])
-            if row["tip"] == "blocked":
-                Xd.append(feats); yd.append(np.zeros(len(feats)))
-            if row["reference"] == "force":
-                ok = np.isfinite(df["f_ref"].to_numpy()[m])
-                Xf.append(feats[ok]); yf.append(df["f_ref"].to_numpy()[m][ok])
-            if row["tip"] == "free":
-                Xf.append(feats); yf.append(np.zeros(len(feats)))
+        # the load link's creep member (chain.creep): its bank columns beside [Q, V_p] (decided below)
+        creep_mode = self._member_modes()["tip_creep"]
+        self.tip_creep_ = {"mode": creep_mode, "applied": False}
         if not (cal["reference"] == "displacement").any() or not (cal["reference"] == "force").any():
             raise CalibrationError(
                 "trials.csv: the A-coefficient regression needs at least one calibration trial with reference "
                 "'displacement' and one with reference 'force' (thesis: free tip + laser, blocked tip + load cell)")
-        lengths_d = [len(v) for v in yd]
-        Xd, yd = np.vstack(Xd), np.concatenate(yd)
-        rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if cfg.rest_offset == "auto"
-                              else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
-        Xf, yf = np.vstack(Xf), np.concatenate(yf)
+        # --- sensing coefficients, jointly over loading conditions
+        rows = self._coefficient_rows(cal_trials, cal, creep_mode != "off")
+        creep_on = self._tip_creep_decision(creep_mode, rows)
+        if creep_on and self.offset_drift_ and self._member_modes()["offset_drift"] == "auto":
+            # creep and the offset-drift member both explain a slow mismatch of charge and strain, and the drift's
+            # rest-segment estimate assumes the free-tip relation at rest, which creep breaks (a mechanism that loads
+            # the actuator turns charge-free creep into charge at rest): where the creep member is carried, the
+            # offset drift is kept only if it also lowers the displacement rows' blocked-CV error (with the bank) by
+            # more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/gap.md, "The creep member")
+            from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN as CREEP_MIN_GAIN
+
+            with_drift = dict(self.tip_creep_)
+            self.offset_drift_ = False
+            alt = self._coefficient_rows(cal_trials, cal, True)
+            self.tip_creep_ = {"mode": creep_mode, "applied": False}
+            alt_on = self._tip_creep_decision(creep_mode, alt)
+            cv_od, cv_no = with_drift["cv_rms_m_with"], self.tip_creep_["cv_rms_m_with"]
+            keep = bool(cv_od < (1.0 - CREEP_MIN_GAIN) * cv_no)
+            check = {"cv_rms_m_with_offset_drift": cv_od, "cv_rms_m_without_offset_drift": cv_no,
+                     "offset_drift_kept": keep,
+                     "note": ("offset drift kept beside the creep member" if keep else
+                              "offset drift dropped: with the creep member it does not lower the displacement rows' "
+                              "blocked-CV error by more than " f"{CREEP_MIN_GAIN:.0%}")
+                     + f" ({cv_od:.3g} m with it, {cv_no:.3g} m without)"}
+            if keep:
+                self.offset_drift_ = True
+                self.tip_creep_ = with_drift
+            else:
+                rows, creep_on = alt, alt_on
+                drift = self.fit_report_.setdefault("hysteresis", {}).setdefault("drift", {})
+                drift["offset_drift_applied"] = False
+                drift["offset_drift_source"] = "dropped beside the creep member"
+            self.tip_creep_["offset_drift_check"] = check
+        Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf = rows
         dx0 = 0.0
+        cd = _lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
+        if creep_on:
+            beta, cd = cd[base.shape[1]:], cd[:base.shape[1]]
+            self.tip_creep_["beta"] = [float(b) for b in beta]
         if rest_ok:
-            cd = _lstsq(np.column_stack([Xd, np.ones(len(Xd))]), yd)
             dx0, cd = float(cd[-1]), cd[:-1]
-        else:
-            cd = _lstsq(Xd, yd)
+        # the creep signal K beta of the force rows (the same strain; one coefficient kappa, chain.creep)
+        sf = Kf @ np.asarray(self.tip_creep_["beta"]) if creep_on else None
         regression = cfg.regression
         zf = force_regressor(Xf[:, 0], Xf[:, 1], n_A, C_p)
-        Zf = zf[:, None]
+        Zf = zf[:, None] if sf is None else np.column_stack([zf, sf])
         if regression == "auto":
             # thesis mode: eq. (52) is exact for the force row in the eq. (55) convention (free-tip V_p is linear in
             # q); on-site mode: paper sec. IV-B regresses the four free terms (A1, A2, S2A1 + S3/n_A alpha, ...).
@@ -1711,7 +1739,7 @@ class SelfSensingEstimator:
             # f = (A3 / n_A) (Q - n_A C_p V_p) + S2 dx (eq. 46 = S3 x_pzt + S2 dx_tip), S2 >= 0 (a passive
             # tip port, eq. 8): the tip-stiffness column is the displacement row (A1 Q + A2 V_p) on the force rows
             dxf = tip_displacement(Xf[:, 0], Xf[:, 1], float(cd[0]), float(cd[1]))
-            Tf = np.column_stack([zf, dxf])
+            Tf = np.column_stack([zf, dxf] + ([] if sf is None else [sf]))
             lower = np.full(Tf.shape[1], -np.inf)
             lower[1] = 0.0
             cf = ridge_lstsq(Tf, yf, np.zeros(Tf.shape[1], bool), 0.0, lower=lower)   # bounded, column-scaled
@@ -1719,10 +1747,14 @@ class SelfSensingEstimator:
             B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
         else:
-            cf = _lstsq(Xf, yf)
+            cf = _lstsq(Xf if sf is None else np.column_stack([Xf, sf]), yf)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
                           "A3": float(cf[0] * n_A)}
         self.coef_["dx0"] = dx0
+        if creep_on:
+            self.tip_creep_["kappa"] = float(cf[-1])
+            self.tip_creep_["applied"] = True
+            Xd, Xf = np.column_stack([Xd, Kd]), np.column_stack([Xf, Kf])
         self.fit_report_["rest_offset"] = {**rest_info, "dx0_m": dx0}
         self.fit_report_["regression"] = {
             "n_displacement_equations": int(len(yd)),
@@ -1735,6 +1767,78 @@ class SelfSensingEstimator:
         if any(self.stress_weights()):
             self._stress_load_ridge(cal_trials, cal)
         return self
+
+    def _coefficient_rows(self, cal_trials, cal, bank: bool) -> tuple:
+        """The rows of the sensing-coefficient regression with the chain's current members: ``(Xd, yd, Xf, yf,
+        lengths_d, rest_ok, rest_info, base, Kd, Kf)`` -- ``[Q, V_p]`` and targets of the displacement rows (free-tip
+        laser, the blocked tip's ``dx = 0``) and of the force rows (load cell, the free tip's ``f = 0``), the rows
+        per displacement segment, the rest-offset decision (:func:`_rest_offset`), the displacement rows' two-port
+        columns (with the rest offset's where adopted) and the creep bank's columns of both (``bank``; empty
+        otherwise, :func:`selfsense.chain.creep.creep_columns`)."""
+        from selfsense.chain.creep import creep_columns
+
+        Xd, yd, Xf, yf = [], [], [], []
+        for tid, row in cal.iterrows():
+            df = cal_trials[tid]
+            m = (df["relay"].to_numpy() < 0.5) & self._voltage_observed(df)
+            # the calibration trial's load (stress member): its force reference, none on a free tip
+            f_load = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force" else
+                      np.zeros(len(df)))
+            feats = self._regressors(df, f_load)
+            if bank:
+                feats = np.column_stack([feats, creep_columns(feats[:, 0], feats[:, 1], _trial_dt(df))])
+            feats = feats[m]
+            if row["reference"] == "displacement":
+                ok = np.isfinite(df["dx_ref"].to_numpy()[m])
+                Xd.append(feats[ok]); yd.append(df["dx_ref"].to_numpy()[m][ok])
+            if row["tip"] == "blocked":
+                Xd.append(feats); yd.append(np.zeros(len(feats)))
+            if row["reference"] == "force":
+                ok = np.isfinite(df["f_ref"].to_numpy()[m])
+                Xf.append(feats[ok]); yf.append(df["f_ref"].to_numpy()[m][ok])
+            if row["tip"] == "free":
+                Xf.append(feats); yf.append(np.zeros(len(feats)))
+        lengths_d = [len(v) for v in yd]
+        Xd, yd = np.vstack(Xd), np.concatenate(yd)
+        Xf, yf = np.vstack(Xf), np.concatenate(yf)
+        Kd, Xd = Xd[:, 2:], Xd[:, :2]
+        Kf, Xf = Xf[:, 2:], Xf[:, :2]
+        rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if self.config.rest_offset == "auto"
+                              else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
+        base = np.column_stack([Xd, np.ones(len(Xd))]) if rest_ok else Xd
+        return Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf
+
+    def _tip_creep_decision(self, mode: str, rows: tuple) -> bool:
+        """Whether the creep member (:mod:`selfsense.chain.creep`) is carried: forced ("on" / "off"), or where its
+        bank lowers the blocked-CV RMS of the displacement rows (:meth:`_coefficient_rows`: the two-port's columns,
+        with the rest offset where adopted) by more than :data:`~selfsense.chain.creep.CREEP_MIN_GAIN`; folds as
+        :func:`_rest_offset`. The numbers and the decision go to :attr:`tip_creep_`."""
+        from selfsense.chain.creep import CREEP_MIN_GAIN, CREEP_TAUS_S, creep_supported
+        from selfsense.hysteresis.models.select import blocked_folds
+
+        _, y, _, _, lengths, _, _, base, K, _ = rows
+        info = self.tip_creep_
+        if mode == "off":
+            info["note"] = "creep member off (config tip_creep: off or member forced off)"
+            return False
+        held = blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)
+
+        def cv(A):
+            err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
+            return float(np.sqrt(np.mean(err ** 2)))
+
+        without, with_ = cv(base), cv(np.column_stack([base, K]))
+        supported = creep_supported(with_, without)
+        on = mode == "on" or supported
+        info.update({"taus_s": list(CREEP_TAUS_S), "cv_rms_m_without": without, "cv_rms_m_with": with_,
+                     "min_gain": CREEP_MIN_GAIN, "supported": supported,
+                     "source": "forced" if mode == "on" else ("calibration" if supported else "none")})
+        info["note"] = (("creep member forced on" if mode == "on" else
+                         "creep member applied" if supported else
+                         "creep member not supported by the calibration trials")
+                        + f" (blocked-CV RMS of the displacement rows {with_:.3g} m with the bank, {without:.3g} m "
+                        f"without; adopted below {1.0 - CREEP_MIN_GAIN:.2f} of it)")
+        return on
 
     def _stress_load_ridge(self, cal_trials, cal) -> None:
         """The ridge of the stress member's load solve (:func:`selfsense.chain.load.choose_load_ridge`), chosen on the
@@ -1901,6 +2005,10 @@ class SelfSensingEstimator:
             w = stress_weight(H, Q, s_h, s_q, *self.stress_offsets())
             V_p = V_p - w * f if f is not None else stress_voltage(Q, V_p, w, self.coef_["B21"], self.coef_["B22"],
                                                                    *self.ranges_["f"], self.stress_ridge())
+        if (self.tip_creep_ or {}).get("applied"):
+            from selfsense.chain.creep import creep_columns
+
+            return np.column_stack([Q, V_p, creep_columns(Q, V_p, _trial_dt(df), self.tip_creep_["taus_s"])])
         return np.column_stack([Q, V_p])
 
     def stress_offsets(self) -> tuple[float, float]:
@@ -1925,6 +2033,11 @@ class SelfSensingEstimator:
         # thesis eq. (52) on the total charge Q + q_0: the rest closing dx0 = A1 q_0 (0 unless adopted, _rest_offset)
         dx = tip_displacement(X[:, 0], X[:, 1], c["A1"], c["A2"], c.get("dx0", 0.0))
         f = tip_force(X[:, 0], X[:, 1], c["B21"], c["B22"])          # thesis eq. (46) / (52)
+        cr = self.tip_creep_ or {}
+        if cr.get("applied") and X.shape[1] > 2:
+            # the creep member (chain.creep): the strain K beta at the tip displacement, kappa K beta at the force
+            s = X[:, 2:] @ np.asarray(cr["beta"], dtype=float)
+            dx, f = dx + s, f + float(cr["kappa"]) * s
         return dx, f
 
     # ------------------------------------------------------------------ estimation
@@ -1981,6 +2094,7 @@ class SelfSensingEstimator:
             "absorption": dict(self.absorption_),
             "quantiser": dict(self.quantiser_),
             "stress": dict(self.stress_),
+            "tip_creep": dict(self.tip_creep_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -2007,5 +2121,6 @@ class SelfSensingEstimator:
         est.absorption_ = dict(d.get("absorption") or {})
         est.quantiser_ = dict(d.get("quantiser") or {})
         est.stress_ = dict(d.get("stress") or {})
+        est.tip_creep_ = dict(d.get("tip_creep") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est
