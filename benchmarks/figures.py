@@ -52,6 +52,9 @@ DATES = {
     "stress_first_20261208": "2026-12-03",
     "creep_member_8080": "2026-12-03",
     "creep_member_first_20261209": "2026-12-03",
+    "creep_member_built_first_20261210": "2026-12-03",
+    "stage_chain_tip_creep_off_fresh800": "2026-12-03",
+    "stage_chain_tip_creep_fresh800": "2026-12-03",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -229,6 +232,14 @@ COMMANDS = {
                                                "of commit e0d11bc)",
     "stage_chain_fold_starts_fresh700": "python benchmarks/stage_chain.py devices --seeds 700-702 --hold-s 0 "
                                         "--out benchmarks/stage_chain/fold_starts_fresh700",
+    "stage_chain_tip_creep_off_fresh800": "python benchmarks/stage_chain.py devices --seeds 800-803 --hold-s 0 "
+                                          "--members '{{\"tip_creep\": \"off\"}}' "
+                                          "--out benchmarks/stage_chain/tip_creep_off_fresh800",
+    "stage_chain_tip_creep_fresh800": "python benchmarks/stage_chain.py devices --seeds 800-803 --hold-s 0 "
+                                      "--out benchmarks/stage_chain/tip_creep_fresh800",
+    "creep_member_built_first_20261210": "python benchmarks/creep_member.py --member --seed 20261210 --cases "
+                                         "3,16,35,64,81,85,93,96 --jobs 2 "
+                                         "--out benchmarks/gap_tip/creep_member_built_first_20261210.md",
     "stage_tip": "python benchmarks/stage_chain.py tip --cases 40 --seed 2026 --out benchmarks/stage_chain/tip",
     "tip_amplifier": "python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 "
                      "--out benchmarks/gap_tip/amplifier_member.md",
@@ -644,8 +655,12 @@ def stage_chain_figures() -> list[Fig]:
              ("benchmarks/stage_chain/before_fold_starts_fresh700/records.jsonl", ", fresh seeds 700-702, the code "
               "before the fold starts of the non-convex final fit", "stage_chain_before_fold_starts_fresh700"),
              ("benchmarks/stage_chain/fold_starts_fresh700/records.jsonl", ", fresh seeds 700-702, the non-convex "
-              "final fit also started from its fold fits (its first contact; current code)",
-              "stage_chain_fold_starts_fresh700")]
+              "final fit also started from its fold fits (its first contact)",
+              "stage_chain_fold_starts_fresh700"),
+             ("benchmarks/stage_chain/tip_creep_off_fresh800/records.jsonl", ", fresh seeds 800-803, the creep member "
+              "forced off", "stage_chain_tip_creep_off_fresh800"),
+             ("benchmarks/stage_chain/tip_creep_fresh800/records.jsonl", ", fresh seeds 800-803, the creep member "
+              "(its first contact; current code)", "stage_chain_tip_creep_fresh800")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -673,7 +688,8 @@ def stage_chain_figures() -> list[Fig]:
     # on each fresh seed set: its first contact and the current code; the scorings between them are history
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
-               "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500"}
+               "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500",
+               "stage_chain_tip_creep_fresh800"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)
@@ -893,6 +909,24 @@ def gap_figures() -> list[Fig]:
                        f"{med('case_default'):.2f} %; {med('member_default'):.2f} / {med('member_drift_off'):.2f} %; "
                        f"{med('twin_default'):.2f} / {med('twin_drift_off'):.2f} %; "
                        f"{sum(r['member']['offset_drift_adopted_default'] for r in rs)} of {len(rs)}",
+                       "", "measured", src_, COMMANDS[key], DATES[key]))
+    key = "creep_member_built_first_20261210"
+    src_ = f"benchmarks/gap_tip/{key}.jsonl"
+    if (ROOT / src_).exists():
+        rs = [json.loads(x) for x in (ROOT / src_).read_text().splitlines() if x.strip()]
+
+        def pair(k, rs=rs):
+            return (f"{statistics.median(r[k]['displacement'] for r in rs):.2f} / "
+                    f"{statistics.median(r[k]['force'] for r in rs):.2f} %")
+
+        out.append(Fig(f"charge-free creep member (config tip_creep), first contact ({len(rs)} slow.creep tip cases of "
+                       "a seed not used before; the tip tier's four calibration trials, not the thesis protocol): "
+                       "Table 3 of the contact validation trials, median displacement / force: member off; default; "
+                       "effect-free twins (default); member adopted on cases / on twins; offset-drift member dropped "
+                       "beside it",
+                       f"{pair('case_off')}; {pair('case_auto')}; {pair('twin_auto')}; "
+                       f"{sum(r['case_auto']['tip_creep'] for r in rs)} / {sum(r['twin_auto']['tip_creep'] for r in rs)}"
+                       f" of {len(rs)}; {sum(r['case_auto']['offset_drift_dropped'] for r in rs)}",
                        "", "measured", src_, COMMANDS[key], DATES[key]))
     nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
     if (ROOT / nsrc_).exists():

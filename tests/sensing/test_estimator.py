@@ -159,6 +159,11 @@ def test_hold_rows_read_every_trial_s_v_and_q_and_never_a_validation_reference(d
     b = SelfSensingEstimator(config=cfg, rig=RIG).fit(poisoned, meta)
     assert a.coef_ == b.coef_
     np.testing.assert_array_equal(a.hysteresis_.coef_, b.hysteresis_.coef_)
+    # drift: off turns the charge link's leakage and offset-drift search off, whatever the other members' modes
+    # (the stress member's configured "off" once switched it back on)
+    drift = a.fit_report_["hysteresis"]["drift"]
+    assert a.leakage_s_ == 0.0 and not a.offset_drift_ and "search" not in drift
+    assert drift["note"] == "drift compensation off (config drift: off)"
     # a charge ramp inside the holds of one validation trial moves the creep of H
     ramped = dict(trials)
     bad = trials["val_free"].copy()

@@ -1047,7 +1047,9 @@ class SelfSensingEstimator:
         drift_info = {"applied": False, "note": "drift compensation off (config drift: off)"}
         self.offset_drift_ = False
         self.drift_hysteresis_ = None
-        if cfg.drift == "auto" or any(m != "auto" for k, m in self._member_modes().items() if k != "amplifier"):
+        # the charge link's search runs with drift: auto, or where one of its own members is forced (the other
+        # members' modes -- a configured "off" of the stress member, say -- do not switch it on)
+        if cfg.drift == "auto" or any(self._member_modes()[k] != "auto" for k in ("leakage", "offset_drift")):
             self.leakage_s_, drift_info = self._leakage(cal_trials, cal, slope)
             self.offset_drift_ = bool(drift_info["offset_drift_applied"])
         # the load link's stress member, decided on the reference model's blocked CV (_stress_member): where adopted,
