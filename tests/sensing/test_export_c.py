@@ -4,7 +4,8 @@ model kind the estimator can hold (issue: real-time self-sensing with the model 
 Every kind is fitted on the bundled sample dataset (``data/raw/sample``, ``drift: off`` so that the model carries no
 offset-drift member), exported, compiled with the system C compiler (``cc``; the tests skip with the reason when
 there is none) with ``-std=c99 -O2 -Wall -Wextra -pedantic -Werror`` and run on the raw samples of every bundled
-trial; batch == stream == C within 1e-9 of the signal range.
+trial; batch == stream == C within 1e-9 of the signal range. One more model carries the load link's creep member
+(selfsense.chain.creep) beside every other member: its lags' states and its tables (a, beta, kappa) in the C code.
 """
 from __future__ import annotations
 
@@ -107,6 +108,17 @@ def models(tmp_path_factory):
     legacy.hysteresis_ = GaugedH(h.inner_, h.sign_, h.c_)
     out["GaugedH"] = SelfSensingEstimator.from_dict(legacy.to_dict(), legacy.rig)
     assert type(out["GaugedH"].hysteresis_).__name__ == "GaugedH"
+    # the load link's creep member (selfsense.chain.creep) beside every other member: a bank of lags on Q and V_p
+    # whose strain is 30 % of the elastic strain A1 Q + A2 V_p, carried to the force row as B21 / A1
+    from selfsense.chain.creep import CREEP_TAUS_S
+
+    cr = SelfSensingEstimator.from_dict(out["pi"].to_dict(), out["pi"].rig)
+    c, n = cr.coef_, len(CREEP_TAUS_S)
+    cr.tip_creep_ = {"mode": "on", "applied": True, "source": "forced", "taus_s": list(CREEP_TAUS_S),
+                     "beta": [b for _ in range(n) for b in (0.3 * c["A1"] / n, -0.2 * c["A2"] / n)],
+                     "kappa": c["B21"] / c["A1"]}
+    cr.config.dc_offset = cr.config.dc_offset_force = True
+    out["tip_creep"] = SelfSensingEstimator.from_dict(cr.to_dict(), cr.rig)
     return d, sigs, out, tmp
 
 
@@ -144,7 +156,7 @@ def _err(a, ref) -> float:
 
 
 @needs_cc
-@pytest.mark.parametrize("name", [*KINDS, "GaugedH"])
+@pytest.mark.parametrize("name", [*KINDS, "GaugedH", "tip_creep"])
 def test_c_equals_batch_and_stream_every_kind(models, name):
     d, sigs, ests, tmp = models
     est = ests[name]
@@ -189,6 +201,9 @@ def test_export_refuses_bad_models_naming_file_and_key(models, tmp_path):
     bad = json.loads(json.dumps(good))
     bad["offset_drift"] = True
     cases["drift"] = (bad, "offset-drift member")
+    bad = json.loads(json.dumps(good))
+    bad["tip_creep"] = {"applied": True, "taus_s": [1.0, 3.0], "beta": [1.0, 2.0, 3.0], "kappa": 0.0}
+    cases["creep"] = (bad, "beta must hold 2 coefficients per lag")
     for name, (dd, msg) in cases.items():
         p = tmp_path / f"{name}.json"
         p.write_text(json.dumps(dd))

@@ -10,7 +10,9 @@ with 17 significant digits:
    ``hysteresis.models._grid``), ``ri`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11, 15-16), ``duhem``, ``modified_pi``
    (Kuhnen's operator, thesis eqs. 29-42, in the sign / linear gauge) and the thesis identification's ``GaugedH``,
    ``RICreepH``, ``RIModel``;
-3. back: eq. (27), eq. (52) with the rest offset, the sliding DC offset and limiting (thesis sec. 5.2).
+3. back: eq. (27), eq. (52) with the rest offset, the load link's creep member (selfsense.chain.creep: a bank of
+   first-order lags on Q and V_p, ``2 * len(taus)`` states from rest, its ``s = K beta`` at the displacement and
+   ``kappa s`` at the force, thesis eqs. 46, 52 + the bank), the sliding DC offset and limiting (thesis sec. 5.2).
 
 API (``<name>.h``)::
 
@@ -146,6 +148,9 @@ void ss_init(ss_state *s)
     s->da_y = 0.0; s->m_last = 0.0; s->mcsum = 0.0; s->mbase = 0.0;
     s->off_sum = 0.0; s->off_n = 0.0; s->off = OFF0; s->off_mode = OFF_MODE0;
     s->dx_dc = 0.0; s->f_dc = 0.0;
+#if CR_N > 0
+    for (i = 0; i < 2 * CR_N; i++) s->cr_y[i] = 0.0;  /* the creep member's lags from rest */
+#endif
     (void)i;
     h_init(s);
 }
@@ -196,6 +201,20 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     }
     if (shorted) { dxr = 0.0; fr = 0.0; }
     else { dxr = A1 * q + A2 * Vp + DX0; fr = B21 * q + B22 * Vp + 0.0; }
+#if CR_N > 0
+    {   /* the load link's creep member (selfsense.chain.creep): s = sum_tau beta (LP_tau[Q] - Q) + beta' (LP_tau[V_p]
+         * - V_p), every lag from rest over every sample; s at the displacement, CR_KAPPA s at the force */
+        double scr = 0.0, yq, yv;
+        int i;
+        for (i = 0; i < CR_N; i++) {
+            yq = (1.0 - CR_A[i]) * q + CR_A[i] * s->cr_y[2 * i];
+            yv = (1.0 - CR_A[i]) * Vp + CR_A[i] * s->cr_y[2 * i + 1];
+            s->cr_y[2 * i] = yq; s->cr_y[2 * i + 1] = yv;
+            scr += CR_BETA[2 * i] * (yq - q) + CR_BETA[2 * i + 1] * (yv - Vp);
+        }
+        if (!shorted) { dxr = dxr + scr; fr = fr + CR_KAPPA * scr; }
+    }
+#endif
     d = dxr; ff = fr;
     if (DC_DX) { if (fabs(u_cmd) <= ZERO_LEVEL) s->dx_dc = dxr; d = dxr - s->dx_dc; }
     if (DC_F) { if (fabs(u_cmd) <= ZERO_LEVEL) s->f_dc = fr; ff = fr - s->f_dc; }
@@ -490,6 +509,12 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     ab = getattr(est, "absorption_", None) or {}
     qz = getattr(est, "quantiser_", None) or {}
     h = _h_spec(est.hysteresis_, float(dt))
+    # the load link's creep member (selfsense.chain.creep): its lags at the export's sample period
+    cr = getattr(est, "tip_creep_", None) or {}
+    cr_taus = [float(x) for x in cr["taus_s"]] if cr.get("applied") else []
+    cr_beta = [float(b) for b in cr["beta"]] if cr.get("applied") else []
+    if len(cr_beta) != 2 * len(cr_taus):
+        raise ExportError(f"tip_creep: beta must hold 2 coefficients per lag ({2 * len(cr_taus)}), got {len(cr_beta)}")
     # the load link's stress member (weights 0 where it is not carried)
     (s_h, s_q), (a_h, a_q) = ((est.stress_weights(), est.stress_offsets()) if hasattr(est, "stress_weights")
                               else ((0.0, 0.0), (0.0, 0.0)))
@@ -509,8 +534,12 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     }
     flags = {"DC_DX": int(bool(cfg.dc_offset)), "DC_F": int(bool(cfg.dc_offset_force)), "LIMIT": int(bool(cfg.limit)),
              "OFF_MODE0": 0}
-    sizes, fields, src = [], [], []
+    sizes, fields, src = [f"#define CR_N {len(cr_taus)}"], [], []
     src.append("".join(f"#define {k} {_num(v)}\n" for k, v in consts.items()))
+    if cr_taus:
+        fields.append(f"    double cr_y[{2 * len(cr_taus)}];  /* creep member: LP_tau[Q], LP_tau[V_p] per lag */")
+        src.append(_table("CR_A", [float(np.exp(-float(dt) / t)) for t in cr_taus]) + _table("CR_BETA", cr_beta)
+                   + f"#define CR_KAPPA {_num(cr['kappa'])}\n")
     src.append("".join(f"#define {k} {v}\n" for k, v in flags.items()) + "#define OFF0 0.0\n")
     H = h["H"]
     parts = []

@@ -31,9 +31,13 @@ each carry their state (O(1) memory per sample):
    range, :func:`selfsense.chain.load.stress_load`);
    ``dx_raw = A1 Q + A2 V_p + dx0``
    (the rest offset member), ``f_raw = B21 Q + B22 V_p`` (eq. 52), 0 while shorted (the kernels of
-   ``selfsense.sensing.core``, which the batch estimator evaluates on arrays); sliding DC offset (thesis sec. 5.2,
-   Fig. 24) on dx (and f if configured), reset whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to
-   the calibrated ranges.
+   ``selfsense.sensing.core``, which the batch estimator evaluates on arrays). The load link's creep member
+   (selfsense.chain.creep; ``taus_s``, ``beta``, ``kappa`` in the model JSON's ``tip_creep``) adds
+   ``s = sum_tau beta_Q,tau (LP_tau[Q] - Q) + beta_V,tau (LP_tau[V_p] - V_p)`` to ``dx_raw`` and ``kappa s`` to
+   ``f_raw`` (thesis eqs. 46, 52 + the bank), its lags the recursion of ``chain.creep.creep_columns`` at the
+   stream's sample period, two states per lag carried from rest over every sample (the relay's too, as the batch
+   runs them over the whole trial); sliding DC offset (thesis sec. 5.2, Fig. 24) on dx (and f if configured), reset
+   whenever ``|u_cmd| <= zero_input_v / amplifier_gain``; limiting to the calibrated ranges.
 
 H is evaluated at the sample time ``dt`` given to the stream, or the calibration's when the samples come with time
 stamps only (the batch uses the trial's median sample period: the same when the log is sampled at the calibration
@@ -65,8 +69,13 @@ _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 _F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH = range(8)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
+_NS_BACK = 2
+# the creep member's lag states follow the fixed back state: [LP_tau[Q], LP_tau[V_p]] per lag, in the order of taus
+_CR_Y = _NS_BACK
 (_B_A1, _B_A2, _B_B21, _B_B22, _B_DX0, _B_ZL, _B_DXLO, _B_DXHI, _B_FLO, _B_FHI, _B_DCDX, _B_DCF,
- _B_LIMIT, _B_KSH, _B_KSQ, _B_AH, _B_AQ, _B_KRG) = range(18)
+ _B_LIMIT, _B_KSH, _B_KSQ, _B_AH, _B_AQ, _B_KRG, _B_KCR, _B_NCR) = range(20)
+# the creep member's tables follow the fixed back parameters: a = exp(-dt / tau) per lag, then beta (2 per lag)
+_NP_BACK = 20
 
 # status codes returned by the kernels
 _OK = 0
@@ -184,8 +193,11 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
 
 @njit(cache=True)
 def back_kernel(P, S, u, relay, q, V, VH, dx_out, f_out, aux):
-    """Link 3 on a block: eq. (27), eq. (52) with the rest offset, sliding DC offset (Fig. 24), limiting (sec. 5.2).
+    """Link 3 on a block: eq. (27), eq. (52) with the rest offset, the load link's creep member, sliding DC offset
+    (Fig. 24), limiting (sec. 5.2). ``P`` holds the fixed parameters, then the creep member's tables (``P[_B_NCR]``
+    lags: their ``a = exp(-dt / tau)``, then ``beta``, two per lag); ``S`` the fixed state, then the lags' states.
     ``aux`` (N, 4) or (0, 4) receives V_p, dx_raw, f_raw, V - V_p."""
+    ncr = int(P[_B_NCR])
     for k in range(u.shape[0]):
         shorted = relay[k] == 1.0
         Vp = _piezo_voltage(V[k], VH[k])
@@ -198,12 +210,27 @@ def back_kernel(P, S, u, relay, q, V, VH, dx_out, f_out, aux):
             den = d * d + P[_B_KRG]
             fl = a * d / den if den != 0.0 else 0.0
             Vp = Vp - w * min(max(fl, P[_B_FLO]), P[_B_FHI])
+        scr = 0.0
+        if ncr > 0:
+            # the load link's creep member (chain.creep): s = sum_tau beta (LP_tau[Q] - Q) + beta' (LP_tau[V_p] - V_p),
+            # each lag the recursion of chain.charge.absorption_column from rest, run over every sample as the batch
+            for j in range(ncr):
+                acr = P[_NP_BACK + j]
+                yq = (1.0 - acr) * q[k] + acr * S[_CR_Y + 2 * j]
+                yv = (1.0 - acr) * Vp + acr * S[_CR_Y + 2 * j + 1]
+                S[_CR_Y + 2 * j] = yq
+                S[_CR_Y + 2 * j + 1] = yv
+                scr += P[_NP_BACK + ncr + 2 * j] * (yq - q[k]) + P[_NP_BACK + ncr + 2 * j + 1] * (yv - Vp)
         if shorted:
             dxr = 0.0
             fr = 0.0
         else:
             dxr = _tip_linear(q[k], Vp, P[_B_A1], P[_B_A2], P[_B_DX0])
             fr = _tip_linear(q[k], Vp, P[_B_B21], P[_B_B22], 0.0)
+            if ncr > 0:
+                # the creep strain at both tip outputs: s at the displacement, kappa s at the force
+                dxr = dxr + scr
+                fr = fr + P[_B_KCR] * scr
         dx = dxr
         f = fr
         zero = abs(u[k]) <= P[_B_ZL]
@@ -486,12 +513,12 @@ class SelfSensingStream:
 
     Parameters
     ----------
-    estimator : a fitted ``SelfSensingEstimator`` (any H model; leakage, rest offset, sliding offset, limiting;
-        not the offset-drift member, which is fitted over whole trials).
+    estimator : a fitted ``SelfSensingEstimator`` (any H model; leakage, rest offset, the load link's creep member,
+        sliding offset, limiting; not the offset-drift member, which is fitted over whole trials).
     rig : ``selfsense.io.Rig`` or rig.yaml mapping (default ``estimator.rig``): needs ``shunt_resistance_ohm``,
         ``inamp_gain``, ``amplifier_gain``.
-    dt : sample period [s], used when samples come without time stamps (``t=None``) and for H's creep terms
-        (default: the calibration's sample time).
+    dt : sample period [s], used when samples come without time stamps (``t=None``), for H's creep terms and for
+        the lags of the absorption and the load link's creep members (default: the calibration's sample time).
     offset : ``"relay"`` (default): in-amp offset = mean ``V_s`` of the first shorted segment, which must open
         the stream (as ``charge_from_shunt(offset="relay")``); or a number [V] (``V_s`` units, i.e. after the
         in-amp gain) to subtract from the first sample on.
@@ -551,6 +578,22 @@ class SelfSensingStream:
             if not (np.isfinite(dt_ab) and dt_ab > 0):
                 raise ValueError("SelfSensingStream: the absorption member needs the sample period; pass dt")
             c_da, a_da = float(ab["c_f"]), float(np.exp(-dt_ab / float(ab["tau_s"])))
+        # the load link's creep member (selfsense.chain.creep): its lags at the stream's sample period, as the
+        # absorption member's (the batch: the trial's median period)
+        a_cr, beta_cr, kappa_cr = [], [], 0.0
+        cr = getattr(estimator, "tip_creep_", None) or {}
+        if cr.get("applied"):
+            dt_cr = self.dt if self.dt is not None else float(self.h.dt)
+            if not (np.isfinite(dt_cr) and dt_cr > 0):
+                raise ValueError("SelfSensingStream: the load link's creep member (tip_creep) needs the sample "
+                                 "period; pass dt")
+            taus = [float(x) for x in cr["taus_s"]]
+            beta_cr = [float(b) for b in cr["beta"]]
+            if len(beta_cr) != 2 * len(taus):
+                raise ValueError(f"tip_creep: beta must hold 2 coefficients per lag ({2 * len(taus)}), "
+                                 f"got {len(beta_cr)}")
+            a_cr = [float(np.exp(-dt_cr / tau)) for tau in taus]
+            kappa_cr = float(cr["kappa"])
         qz = getattr(estimator, "quantiser_", None) or {}
         i_q, half_q = ((float(qz["i_q_a"]), float(qz["half_step_v"])) if qz.get("applied") else (0.0, 0.0))
         self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q])
@@ -560,7 +603,9 @@ class SelfSensingStream:
             cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
             estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit)),
-            *estimator.stress_weights(), *estimator.stress_offsets(), estimator.stress_ridge()], dtype=float)
+            *estimator.stress_weights(), *estimator.stress_offsets(), estimator.stress_ridge(),
+            kappa_cr, float(len(a_cr)), *a_cr, *beta_cr], dtype=float)
+        self._SB0 = np.zeros(_NS_BACK + 2 * len(a_cr))
         self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
         self._buf = {k: np.zeros(1) for k in ("u", "v", "r", "t", "q", "V", "qm", "ts", "dx", "f")}
         self._buf["aux"] = np.empty((0, 4))
@@ -600,7 +645,7 @@ class SelfSensingStream:
     def reset(self) -> None:
         """Back to the initial state (no samples seen, operators at their relaxed states)."""
         self._SF = self._SF0.copy()
-        self._SB = np.zeros(2)
+        self._SB = self._SB0.copy()
         self.h.reset()
         if self.drift is not None:
             self.drift.reset()
@@ -615,8 +660,9 @@ class SelfSensingStream:
             raise ValueError("state must be a dict from get_state() with keys front, back, h, drift")
         f = np.asarray(state["front"], dtype=np.float64)
         b = np.asarray(state["back"], dtype=np.float64)
-        if f.shape != self._SF0.shape or b.shape != (2,):
-            raise ValueError(f"state: front must have shape {self._SF0.shape} and back (2,), got {f.shape}, {b.shape}")
+        if f.shape != self._SF0.shape or b.shape != self._SB0.shape:
+            raise ValueError(f"state: front must have shape {self._SF0.shape} and back {self._SB0.shape}, got "
+                             f"{f.shape}, {b.shape}")
         self._SF, self._SB = f.copy(), b.copy()
         self.h.set_state(state["h"])
         if self.drift is not None:
