@@ -76,6 +76,12 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "leakage_ns": float(est.leakage_s_ * 1e9),
             "leakage_source": d.get("source", "calibration" if d.get("applied") else "none"),
             "offset_drift": bool(est.offset_drift_), "members": dict(members or {}),
+            # the offset-drift gate's numbers (computed whether or not the member is forced): the H(q) fit's blocked-CV
+            # error with the per-trial drift columns over without them, and whether that alone would adopt it
+            "offset_drift_cv_ratio": (float(d["cv_rms_v_with"] / d["offset_drift_cv_rms_v_without"])
+                                      if d.get("offset_drift_cv_rms_v_without") and d.get("cv_rms_v_with") is not None
+                                      else None),
+            "offset_drift_true": float(sc["effects"].get("offset_drift", 0.0)) if preset != "clean" else 0.0,
             # the load link's charge-free creep member (chain.creep): adopted, and its blocked-CV ratio
             "tip_creep": bool((est.tip_creep_ or {}).get("applied", False)),
             "tip_creep_cv_ratio": (float(est.tip_creep_["cv_rms_m_with"] / est.tip_creep_["cv_rms_m_without"])

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from selfsense.chain.creep import CREEP_MIN_GAIN, CREEP_TAUS_S, creep_columns, creep_supported
+from selfsense.chain.creep import CREEP_MIN_GAIN, CREEP_TAUS_S, creep_columns, creep_supported, identifiable_taus
 from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case
 from selfsense.gap.blindsim import simulate_family_case
 from selfsense.gap.counterfactual import _summary, tip_table
@@ -59,6 +59,15 @@ def test_columns_are_the_lags_transient_from_rest():
         creep_columns(Q, V, 0.0)
 
 
+def test_identifiable_lags():
+    """A lag much longer than every calibration trial is left out (its column is -s plus a small integral, told apart
+    only by coefficients of order tau / T that A1, A2 cancel); the bound (3 T) is inclusive, the grid's order kept."""
+    assert identifiable_taus([0.5, 0.2]) == (0.3, 1.0)
+    assert identifiable_taus([1.0]) == (0.3, 1.0, 3.0)
+    assert identifiable_taus([10.0, 5.0]) == tuple(CREEP_TAUS_S)
+    assert identifiable_taus([0.05]) == () and identifiable_taus([]) == ()
+
+
 def test_gate():
     assert creep_supported(0.5, 1.0)
     assert not creep_supported(1.0 - CREEP_MIN_GAIN, 1.0)
@@ -75,7 +84,10 @@ def test_member_carries_creep_at_both_outputs(creeping, fits):
     tr, me, rig = creeping
     off, auto = fits["case", "off"], fits["case", "auto"]
     c = auto.tip_creep_
-    assert c["applied"] and c["source"] == "calibration" and len(c["beta"]) == 2 * len(CREEP_TAUS_S)
+    assert c["applied"] and c["source"] == "calibration" and len(c["beta"]) == 2 * len(c["taus_s"])
+    # only the lags the calibration trials can identify: none longer than 3x the longest of them (10 s here: all)
+    longest = max(len(tr[t]) / FS_CASE for t in me.index[me["role"] == "calibration"])
+    assert c["taus_s"] == [t for t in CREEP_TAUS_S if t <= 3.0 * longest] and c["taus_s"]
     assert c["cv_rms_m_with"] < 0.5 * c["cv_rms_m_without"]                 # measured 0.19
     assert np.isfinite(c["kappa"])
     before, after = _table3(tr, me, rig, off), _table3(tr, me, rig, auto)

@@ -4,9 +4,11 @@ on Q and V_p, ``s = K beta`` added to the tip displacement and ``kappa s`` to th
 batch ``SelfSensingEstimator.estimate`` on the synthetic dataset of test_streaming (a play-operator H(q), the thesis'
 modified PI).
 
-Forced on (``members={"tip_creep": "on"}``) on these 1.6-s trials of a device without creep, the bank's slow lags
-(30 s) are nearly the columns Q and V_p themselves, and the unregularised fit trades them against A1, A2: the terms
-of ``dx_raw`` are some 1e10 times its range and cancel. The stream equals the batch there to the rounding of those
+Forced on (``members={"tip_creep": "on"}``) on these 1.6-s trials of a device without creep, the bank keeps the lags
+the trials can identify (0.3, 1 and 3 s: ``chain.creep.identifiable_taus``, at most 3x the longest trial; the 10- and
+30-s lags, nearly the columns Q and V_p themselves, once gave terms 1e10 times the range). Those lags are still
+nearly collinear with each other and with Q and V_p here, and the unregularised fit trades them against A1, A2: the
+terms of ``dx_raw`` are some 1e6 times its range and cancel. The stream equals the batch there to the rounding of those
 terms (1e-12 of their size, the test_streaming tolerance taken relative to what is summed). With a bank of a
 physical size (hand-set: 30 % of the elastic strain) the stream equals the batch to 1e-12 of the signal range, the
 tolerance of the other members; a bank of zeros gives the stream without the member bit for bit.
@@ -50,6 +52,7 @@ def data(tmp_path_factory):
     forced = fit("on")
     assert forced.tip_creep_["applied"] and forced.tip_creep_["source"] == "forced"
     assert len(forced.tip_creep_["beta"]) == 2 * len(forced.tip_creep_["taus_s"])
+    assert forced.tip_creep_["taus_s"] == [0.3, 1.0, 3.0]    # the lags 1.6-s trials identify (<= 4.8 s)
     # a bank of a physical size on the chain fitted without it: the creep strain 30 % of the elastic strain
     # A1 Q + A2 V_p at equilibrium, shared by the lags, carried to the force row as the mechanism's B21 / A1
     hand = _copy(fit("off"))

@@ -101,9 +101,10 @@ def _fit(d: Path, tmp: Path, **cfg):
     meta = sio.load_trials(d).set_index("trial")
     sigs = {t: stages.ingest(d, t, tmp / f"{t}.parquet") for t in meta.index}
     # the streaming kernel runs the modified PI of the thesis identification (registry models: batch estimation)
-    # the creep member is off here: on these 1.6-s trials its 10-30 s lags are nearly Q and V_p themselves, the fit
-    # trades them against A1, A2 with terms 1e10 times the range that cancel, and the stream meets the batch only to
-    # the rounding of those terms (test_stream_tip_creep.py checks the member at that tolerance)
+    # the creep member is off here: on these 1.6-s trials of a device without creep its identifiable lags (0.3-3 s)
+    # are nearly collinear with each other and with Q and V_p; forced on, the unregularised fit trades them with terms
+    # some 1e6 times the range that cancel, and the stream meets the batch only to the rounding of those terms
+    # (test_stream_tip_creep.py checks the member at that tolerance)
     cfg = {"h_model": "modified_pi", "h_identification": "thesis", "drift": "off", "dc_offset": True,
            "tip_creep": "off", **cfg}
     est = SelfSensingEstimator(config=SensingConfig(**cfg), rig=sio.load_rig(d)).fit(sigs, meta)

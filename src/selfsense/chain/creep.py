@@ -9,7 +9,8 @@ step the tip keeps moving while the charge does not).
 **Form.** Model the creep strain ``x_cr`` as a linear viscoelastic response to the elastic strain, which is a
 combination of ``Q`` and ``V_p`` (the charge equation of the two-port: ``q = n alpha x_el + n C_p V_p``), written as a
 Prony series of first-order lags on a fixed log-spaced grid ``CREEP_TAUS_S`` (not the time constants of any one
-device; the grid spans the trial lengths)::
+device; the grid spans the trial lengths), of which the lags the calibration trials can identify are kept
+(:func:`identifiable_taus`: no longer than three times the longest calibration trial)::
 
     x_cr = sum_tau  a_tau LP_tau[Q] + b_tau LP_tau[V_p]
 
@@ -37,10 +38,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CREEP_TAUS_S", "CREEP_MIN_GAIN", "OFFSET_DRIFT_BESIDE_CREEP_GAIN", "creep_columns", "creep_supported"]
+__all__ = ["CREEP_TAUS_S", "CREEP_MIN_GAIN", "OFFSET_DRIFT_BESIDE_CREEP_GAIN", "creep_columns", "creep_supported",
+           "identifiable_taus", "TAU_MAX_PER_RECORD"]
 
 #: the bank's lags [s]: log-spaced over the lengths of a calibration trial (tens of seconds)
 CREEP_TAUS_S = (0.3, 1.0, 3.0, 10.0, 30.0)
+
+#: a lag of the bank is kept while it is at most this many times the longest calibration trial
+#: (:func:`identifiable_taus`)
+TAU_MAX_PER_RECORD = 3.0
 
 #: the bank must lower the displacement rows' blocked-CV error by more than this fraction to be adopted (it adds
 #: 2 x 5 columns: a gain the size of the offset-drift member's 1 % is within what ten free columns give by chance)
@@ -67,6 +73,23 @@ def creep_columns(Q: np.ndarray, V_p: np.ndarray, dt: float, taus=CREEP_TAUS_S) 
         for s in (Q, V_p):
             cols.append(absorption_column(s, dt, float(tau)) - s)
     return np.column_stack(cols) if cols else np.zeros((len(Q), 0))
+
+
+def identifiable_taus(durations_s, taus=CREEP_TAUS_S) -> tuple:
+    """The lags of the bank that the calibration trials can identify: those no longer than
+    :data:`TAU_MAX_PER_RECORD` times the longest calibration trial of the displacement rows (``durations_s`` [s]).
+
+    Over a record of length ``T << tau`` a lag from rest is ``LP_tau[s] ~ (1/tau) int s dt``, so its column
+    ``LP_tau[s] - s`` is ``-s`` plus a small integral: fitted beside A1 Q + A2 V_p it is told apart only through a
+    coefficient of order ``tau / T`` that the two-port's coefficients cancel (terms up to 1e10 times the range were
+    measured on 1.6-s trials with the 10- and 30-s lags), and that cancellation is extrapolated to every longer
+    validation trial. At ``tau = 3 T`` the lag's step response over the record still departs from its straight-line
+    (integral) approximation by 15 % of its value (``1 - exp(-1/3) = 0.28`` against ``1/3``), and the coefficients stay
+    of the order of the signals. A lag the calibration cannot identify is left out rather than regularised: a statement
+    about the calibration data, reported with the member (``taus_s``)."""
+    longest = max((float(d) for d in durations_s), default=0.0)
+    # (a relative 1e-9 for the rounding of n * dt: a 10-s record at 400 Hz measures 9.9999999999998 s)
+    return tuple(float(t) for t in taus if t <= TAU_MAX_PER_RECORD * longest * (1.0 + 1e-9))
 
 
 def creep_supported(cv_with: float, cv_without: float) -> bool:

@@ -534,6 +534,15 @@ def rest_offset_supported(cv_with: float, cv_without: float) -> bool:
     return bool(cv_with < (1.0 - REST_OFFSET_MIN_GAIN) * cv_without)
 
 
+def _blocked_cv_rms(A: np.ndarray, y: np.ndarray, held: list) -> float:
+    """Blocked cross-validated RMS of the least-squares fit ``y ~ A``: each mask of ``held`` (from
+    :func:`selfsense.hysteresis.models.select.blocked_folds`) is predicted from the rows outside it. The score with
+    which the chain's members of the sensing regression are adopted (rest offset, creep bank, offset drift beside
+    it)."""
+    err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
 def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5) -> tuple[bool, dict]:
     """Whether the displacement row gets a constant ``dx0`` [m], the tip's closing at rest.
 
@@ -546,13 +555,8 @@ def _rest_offset(X: np.ndarray, y: np.ndarray, lengths: list, n_blocks: int = 5)
     from selfsense.hysteresis.models.select import blocked_folds
 
     held = blocked_folds(lengths, n_blocks, rotate=False)
-
-    def cv(A):
-        err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
-        return float(np.sqrt(np.mean(err ** 2)))
-
-    without = cv(X)
-    with_ = cv(np.column_stack([X, np.ones(len(X))]))
+    without = _blocked_cv_rms(X, y, held)
+    with_ = _blocked_cv_rms(np.column_stack([X, np.ones(len(X))]), y, held)
     ok = rest_offset_supported(with_, without)
     return ok, {"applied": ok, "cv_rms_m_without": without, "cv_rms_m_with": with_,
                 "note": ("rest offset applied" if ok else "rest offset not supported by the calibration trials")
@@ -1681,29 +1685,43 @@ class SelfSensingEstimator:
                 "trials.csv: the A-coefficient regression needs at least one calibration trial with reference "
                 "'displacement' and one with reference 'force' (thesis: free tip + laser, blocked tip + load cell)")
         # --- sensing coefficients, jointly over loading conditions
-        rows = self._coefficient_rows(cal_trials, cal, creep_mode != "off")
+        from selfsense.chain.creep import identifiable_taus
+
+        # the bank's lags that the calibration trials of the displacement rows can identify (chain.creep)
+        taus = () if creep_mode == "off" else identifiable_taus(
+            [len(df) * _trial_dt(df) for tid, df in cal_trials.items()
+             if cal.loc[tid, "reference"] == "displacement" or cal.loc[tid, "tip"] == "blocked"])
+        if creep_mode != "off":
+            self.tip_creep_["taus_s"] = list(taus)
+        rows = self._coefficient_rows(cal_trials, cal, taus)
         creep_on = self._tip_creep_decision(creep_mode, rows)
         if creep_on and self.offset_drift_ and self._member_modes()["offset_drift"] == "auto":
             # creep and the offset-drift member both explain a slow mismatch of charge and strain, and the drift's
             # rest-segment estimate assumes the free-tip relation at rest, which creep breaks (a mechanism that loads
             # the actuator turns charge-free creep into charge at rest): where the creep member is carried, the
             # offset drift is kept only if it also lowers the displacement rows' blocked-CV error (with the bank) by
-            # more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/gap.md, "The creep member")
-            from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN as CREEP_MIN_GAIN
+            # more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/gap.md, "The creep member"). The force rows' blocked-CV
+            # errors are recorded beside it: they do not tell the cases apart where keeping the drift helps from those
+            # where it costs (benchmarks/gap_tip/drift_beside_creep.md), so they do not decide.
+            from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN
 
             with_drift = dict(self.tip_creep_)
+            f_od = self._force_rows_cv(rows, True)
             self.offset_drift_ = False
-            alt = self._coefficient_rows(cal_trials, cal, True)
-            self.tip_creep_ = {"mode": creep_mode, "applied": False}
+            alt = self._coefficient_rows(cal_trials, cal, taus)
+            self.tip_creep_ = {"mode": creep_mode, "applied": False, "taus_s": list(taus)}
             alt_on = self._tip_creep_decision(creep_mode, alt)
+            f_no = self._force_rows_cv(alt, alt_on)
             cv_od, cv_no = with_drift["cv_rms_m_with"], self.tip_creep_["cv_rms_m_with"]
-            keep = bool(cv_od < (1.0 - CREEP_MIN_GAIN) * cv_no)
+            keep = bool(cv_od < (1.0 - OFFSET_DRIFT_BESIDE_CREEP_GAIN) * cv_no)
             check = {"cv_rms_m_with_offset_drift": cv_od, "cv_rms_m_without_offset_drift": cv_no,
+                     "cv_rms_n_with_offset_drift": f_od, "cv_rms_n_without_offset_drift": f_no,
                      "offset_drift_kept": keep,
                      "note": ("offset drift kept beside the creep member" if keep else
                               "offset drift dropped: with the creep member it does not lower the displacement rows' "
-                              "blocked-CV error by more than " f"{CREEP_MIN_GAIN:.0%}")
-                     + f" ({cv_od:.3g} m with it, {cv_no:.3g} m without)"}
+                              f"blocked-CV error by more than {OFFSET_DRIFT_BESIDE_CREEP_GAIN:.0%}")
+                     + f" (displacement rows {cv_od:.3g} m with it, {cv_no:.3g} m without; force rows, not deciding, "
+                       f"{f_od:.3g} N with it, {f_no:.3g} N without)"}
             if keep:
                 self.offset_drift_ = True
                 self.tip_creep_ = with_drift
@@ -1713,7 +1731,7 @@ class SelfSensingEstimator:
                 drift["offset_drift_applied"] = False
                 drift["offset_drift_source"] = "dropped beside the creep member"
             self.tip_creep_["offset_drift_check"] = check
-        Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf = rows
+        Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, _ = rows
         dx0 = 0.0
         cd = _lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
         if creep_on:
@@ -1770,13 +1788,13 @@ class SelfSensingEstimator:
             self._stress_load_ridge(cal_trials, cal)
         return self
 
-    def _coefficient_rows(self, cal_trials, cal, bank: bool) -> tuple:
+    def _coefficient_rows(self, cal_trials, cal, taus) -> tuple:
         """The rows of the sensing-coefficient regression with the chain's current members: ``(Xd, yd, Xf, yf,
-        lengths_d, rest_ok, rest_info, base, Kd, Kf)`` -- ``[Q, V_p]`` and targets of the displacement rows (free-tip
+        lengths_d, rest_ok, rest_info, base, Kd, Kf, lengths_f)`` -- ``[Q, V_p]`` and targets of the displacement rows (free-tip
         laser, the blocked tip's ``dx = 0``) and of the force rows (load cell, the free tip's ``f = 0``), the rows
         per displacement segment, the rest-offset decision (:func:`_rest_offset`), the displacement rows' two-port
-        columns (with the rest offset's where adopted) and the creep bank's columns of both (``bank``; empty
-        otherwise, :func:`selfsense.chain.creep.creep_columns`)."""
+        columns (with the rest offset's where adopted), the creep bank's columns of both (lags ``taus``, none where
+        empty: :func:`selfsense.chain.creep.creep_columns`) and the rows per force segment."""
         from selfsense.chain.creep import creep_columns
 
         Xd, yd, Xf, yf = [], [], [], []
@@ -1787,8 +1805,8 @@ class SelfSensingEstimator:
             f_load = (np.nan_to_num(df["f_ref"].to_numpy(dtype=float)) if row["reference"] == "force" else
                       np.zeros(len(df)))
             feats = self._regressors(df, f_load)
-            if bank:
-                feats = np.column_stack([feats, creep_columns(feats[:, 0], feats[:, 1], _trial_dt(df))])
+            if len(taus):
+                feats = np.column_stack([feats, creep_columns(feats[:, 0], feats[:, 1], _trial_dt(df), taus)])
             feats = feats[m]
             if row["reference"] == "displacement":
                 ok = np.isfinite(df["dx_ref"].to_numpy()[m])
@@ -1800,7 +1818,7 @@ class SelfSensingEstimator:
                 Xf.append(feats[ok]); yf.append(df["f_ref"].to_numpy()[m][ok])
             if row["tip"] == "free":
                 Xf.append(feats); yf.append(np.zeros(len(feats)))
-        lengths_d = [len(v) for v in yd]
+        lengths_d, lengths_f = [len(v) for v in yd], [len(v) for v in yf]
         Xd, yd = np.vstack(Xd), np.concatenate(yd)
         Xf, yf = np.vstack(Xf), np.concatenate(yf)
         Kd, Xd = Xd[:, 2:], Xd[:, :2]
@@ -1808,31 +1826,44 @@ class SelfSensingEstimator:
         rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if self.config.rest_offset == "auto"
                               else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
         base = np.column_stack([Xd, np.ones(len(Xd))]) if rest_ok else Xd
-        return Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf
+        return Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, lengths_f
+
+    def _force_rows_cv(self, rows: tuple, creep_on: bool) -> float:
+        """Blocked-CV RMS [N] of the force rows of :meth:`_coefficient_rows` regressed on ``[Q, V_p]`` (thesis eq. 46)
+        and, where the creep member is carried, its creep signal ``K beta`` (``beta`` fitted on the displacement
+        rows): the force side of the offset-drift re-decision beside the creep member (:meth:`fit_coefficients`)."""
+        from selfsense.hysteresis.models.select import blocked_folds
+
+        _, yd, Xf, yf, _, _, _, base, Kd, Kf, lengths_f = rows
+        A = Xf
+        if creep_on:
+            beta = _lstsq(np.column_stack([base, Kd]), yd)[base.shape[1]:]
+            A = np.column_stack([Xf, Kf @ beta])
+        return _blocked_cv_rms(A, yf, blocked_folds(lengths_f, max(int(self.config.cv_blocks), 2), rotate=False))
 
     def _tip_creep_decision(self, mode: str, rows: tuple) -> bool:
         """Whether the creep member (:mod:`selfsense.chain.creep`) is carried: forced ("on" / "off"), or where its
         bank lowers the blocked-CV RMS of the displacement rows (:meth:`_coefficient_rows`: the two-port's columns,
         with the rest offset where adopted) by more than :data:`~selfsense.chain.creep.CREEP_MIN_GAIN`; folds as
         :func:`_rest_offset`. The numbers and the decision go to :attr:`tip_creep_`."""
-        from selfsense.chain.creep import CREEP_MIN_GAIN, CREEP_TAUS_S, creep_supported
+        from selfsense.chain.creep import CREEP_MIN_GAIN, creep_supported
         from selfsense.hysteresis.models.select import blocked_folds
 
-        _, y, _, _, lengths, _, _, base, K, _ = rows
+        _, y, _, _, lengths, _, _, base, K, _, _ = rows
         info = self.tip_creep_
         if mode == "off":
             info["note"] = "creep member off (config tip_creep: off or member forced off)"
             return False
+        if not K.shape[1]:
+            info.update({"supported": False, "source": "none"})
+            info["note"] = ("creep member not carried: no lag of the bank is identifiable from the calibration trials "
+                            "(every lag is longer than the longest of them; chain.creep.identifiable_taus)")
+            return False
         held = blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)
-
-        def cv(A):
-            err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
-            return float(np.sqrt(np.mean(err ** 2)))
-
-        without, with_ = cv(base), cv(np.column_stack([base, K]))
+        without, with_ = _blocked_cv_rms(base, y, held), _blocked_cv_rms(np.column_stack([base, K]), y, held)
         supported = creep_supported(with_, without)
         on = mode == "on" or supported
-        info.update({"taus_s": list(CREEP_TAUS_S), "cv_rms_m_without": without, "cv_rms_m_with": with_,
+        info.update({"cv_rms_m_without": without, "cv_rms_m_with": with_,
                      "min_gain": CREEP_MIN_GAIN, "supported": supported,
                      "source": "forced" if mode == "on" else ("calibration" if supported else "none")})
         info["note"] = (("creep member forced on" if mode == "on" else
