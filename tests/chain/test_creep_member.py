@@ -139,9 +139,11 @@ def test_config_rejects_other_modes():
 def test_offset_drift_re_decided_beside_the_creep_member():
     """Case 155 of campaign 8080 (Jiles-Atherton, creep 0.32 of the elastic strain, no offset drift in the device):
     the H(q) fit's gate adopts the offset-drift member, whose rest-segment estimate takes up the creep's charge at
-    rest. Beside the creep member it lowers the displacement rows' blocked-CV error by 6 % only, less than
-    OFFSET_DRIFT_BESIDE_CREEP_GAIN: dropped, with the numbers in the report; the contact trials' displacement falls
-    from 33 % (neither member changed) to about 4 %."""
+    rest. Beside the creep member it is decided again against the chain calibrated without it (H(q) fitted again with
+    the member off): it does not lower the displacement rows' blocked-CV error by OFFSET_DRIFT_BESIDE_CREEP_GAIN, so
+    it is dropped, with the numbers in the report, and the estimator is then the chain fitted with the member off from
+    the start, bit for bit. The contact trials' displacement falls from 33 % (neither member changed) to about 5 %;
+    dropping the drift without fitting H(q) again left the force at 3.70 % (measured 2.57 % now)."""
     from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN
 
     c = draw_tip_case(155, 8080)
@@ -149,8 +151,17 @@ def test_offset_drift_re_decided_beside_the_creep_member():
     est = _fit(tr, me, rig, "auto")
     chk = est.tip_creep_["offset_drift_check"]
     assert est.tip_creep_["applied"] and not est.offset_drift_ and not chk["offset_drift_kept"]
+    assert chk["h_refitted_without_offset_drift"]
     assert not (chk["cv_rms_m_with_offset_drift"]
                 < (1.0 - OFFSET_DRIFT_BESIDE_CREEP_GAIN) * chk["cv_rms_m_without_offset_drift"])
     drift = est.fit_report_["hysteresis"]["drift"]
     assert drift["offset_drift_applied"] is False and "creep" in drift["offset_drift_source"]
-    assert _table3(tr, me, rig, est)["displacement"] < 8.0       # measured 4.04
+    assert est.members == {"tip_creep": "auto"}          # the forced "off" of the refit is not left behind
+    off = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"offset_drift": "off"}).fit(tr, me)
+    assert off.coef_ == est.coef_ and off.tip_creep_["beta"] == est.tip_creep_["beta"]
+    for t in me.index[me["role"] == "validation"]:
+        a, b = est.estimate(tr[t]), off.estimate(tr[t])
+        assert np.array_equal(a["dx_hat"].to_numpy(), b["dx_hat"].to_numpy(), equal_nan=True)
+        assert np.array_equal(a["f_hat"].to_numpy(), b["f_hat"].to_numpy(), equal_nan=True)
+    t3 = _table3(tr, me, rig, est)
+    assert t3["displacement"] < 8.0 and t3["force"] < 3.3, t3      # measured 4.96 / 2.57

@@ -53,7 +53,8 @@ TAU_MAX_PER_RECORD = 3.0
 CREEP_MIN_GAIN = 0.10
 
 #: where the creep member is carried, the offset-drift member is kept only if it lowers the displacement rows'
-#: blocked-CV error (with the bank) by more than this fraction. Chosen on the development cases of the tip campaign
+#: blocked-CV error (with the bank) by more than this fraction against the chain calibrated without it (H(q) fitted
+#: again with the member off: ``SelfSensingEstimator.fit_coefficients``). Chosen on the development cases of the tip campaign
 #: (seed 8080 cases 155, 188, 271; seed 20261209 case 43: no offset drift in the device, the member adopted by the
 #: H(q) fit; beside the bank it lowered that error by -60 to 12 %, and dropping it took the contact trials'
 #: displacement from 12.7-37.1 % to 2.4-5.4 %), then scored on fresh devices (docs/gap.md, "The creep member")

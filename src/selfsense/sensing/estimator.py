@@ -1699,37 +1699,51 @@ class SelfSensingEstimator:
             # creep and the offset-drift member both explain a slow mismatch of charge and strain, and the drift's
             # rest-segment estimate assumes the free-tip relation at rest, which creep breaks (a mechanism that loads
             # the actuator turns charge-free creep into charge at rest): where the creep member is carried, the
-            # offset drift is kept only if it also lowers the displacement rows' blocked-CV error (with the bank) by
-            # more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/gap.md, "The creep member"). The force rows' blocked-CV
-            # errors are recorded beside it: they do not tell the cases apart where keeping the drift helps from those
-            # where it costs (benchmarks/gap_tip/drift_beside_creep.md), so they do not decide.
+            # offset drift is decided again against the chain calibrated without it -- H(q) fitted again with the
+            # member forced off (its per-trial drift columns had taken part of the misfit away from H), the sensing
+            # regression on that chain -- and kept only if it lowers the displacement rows' blocked-CV error (with
+            # the bank) by more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/method.md 6h). The force rows' blocked-CV
+            # errors are recorded beside it: they do not tell the cases apart where keeping the drift helps from
+            # those where it costs (benchmarks/gap_tip/drift_beside_creep.md), so they do not decide.
+            import copy
+
             from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN
 
-            with_drift = dict(self.tip_creep_)
-            f_od = self._force_rows_cv(rows, True)
-            self.offset_drift_ = False
-            alt = self._coefficient_rows(cal_trials, cal, taus)
+            cv_od, f_od = self.tip_creep_["cv_rms_m_with"], self._force_rows_cv(rows, True)
+            with_drift = copy.deepcopy(self.__dict__)
+            saved, saved_reuse = self.members, self.leakage_search_reuse
+            self.members = {**dict(saved or {}), "offset_drift": "off"}
+            # the leakage search reads the calibration inputs only (its reference carries the drift columns either
+            # way): this fit's search is reused
+            self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
+            try:
+                self.fit_hysteresis(trials, meta)
+            finally:
+                self.members, self.leakage_search_reuse = saved, saved_reuse
+            cal, alt_trials = self._calibration_set(trials, meta)
+            alt_trials = {t: self._with_links(df) for t, df in alt_trials.items()}
+            alt = self._coefficient_rows(alt_trials, cal, taus)
             self.tip_creep_ = {"mode": creep_mode, "applied": False, "taus_s": list(taus)}
             alt_on = self._tip_creep_decision(creep_mode, alt)
-            f_no = self._force_rows_cv(alt, alt_on)
-            cv_od, cv_no = with_drift["cv_rms_m_with"], self.tip_creep_["cv_rms_m_with"]
+            cv_no, f_no = self.tip_creep_["cv_rms_m_with"], self._force_rows_cv(alt, alt_on)
             keep = bool(cv_od < (1.0 - OFFSET_DRIFT_BESIDE_CREEP_GAIN) * cv_no)
             check = {"cv_rms_m_with_offset_drift": cv_od, "cv_rms_m_without_offset_drift": cv_no,
                      "cv_rms_n_with_offset_drift": f_od, "cv_rms_n_without_offset_drift": f_no,
-                     "offset_drift_kept": keep,
+                     "offset_drift_kept": keep, "h_refitted_without_offset_drift": not keep,
                      "note": ("offset drift kept beside the creep member" if keep else
-                              "offset drift dropped: with the creep member it does not lower the displacement rows' "
-                              f"blocked-CV error by more than {OFFSET_DRIFT_BESIDE_CREEP_GAIN:.0%}")
+                              "offset drift dropped and H(q) calibrated again without it: with the creep member it "
+                              "does not lower the displacement rows' blocked-CV error by more than "
+                              f"{OFFSET_DRIFT_BESIDE_CREEP_GAIN:.0%} against the chain calibrated without it")
                      + f" (displacement rows {cv_od:.3g} m with it, {cv_no:.3g} m without; force rows, not deciding, "
                        f"{f_od:.3g} N with it, {f_no:.3g} N without)"}
             if keep:
-                self.offset_drift_ = True
-                self.tip_creep_ = with_drift
+                self.__dict__.update(with_drift)
             else:
-                rows, creep_on = alt, alt_on
+                rows, creep_on, cal_trials = alt, alt_on, alt_trials
                 drift = self.fit_report_.setdefault("hysteresis", {}).setdefault("drift", {})
                 drift["offset_drift_applied"] = False
                 drift["offset_drift_source"] = "dropped beside the creep member"
+                drift["offset_drift_mode"] = "auto"
             self.tip_creep_["offset_drift_check"] = check
         Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, _ = rows
         dx0 = 0.0
