@@ -55,6 +55,8 @@ DATES = {
     "creep_member_built_first_20261210": "2026-12-03",
     "stage_chain_tip_creep_off_fresh800": "2026-12-03",
     "stage_chain_tip_creep_fresh800": "2026-12-03",
+    "stage_chain_drift_refit_fresh806": "2026-12-03",
+    "creep_chain_first_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -237,6 +239,10 @@ COMMANDS = {
                                           "--out benchmarks/stage_chain/tip_creep_off_fresh800",
     "stage_chain_tip_creep_fresh800": "python benchmarks/stage_chain.py devices --seeds 800-803 --hold-s 0 "
                                       "--out benchmarks/stage_chain/tip_creep_fresh800",
+    "stage_chain_drift_refit_fresh806": "python benchmarks/stage_chain.py devices --seeds 806-809 --hold-s 0 "
+                                        "--out benchmarks/stage_chain/drift_refit_fresh806",
+    "creep_chain_first_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
+                                  "--jobs 2 --out benchmarks/gap_tip/creep_chain_first_20261211.md",
     "creep_member_built_first_20261210": "python benchmarks/creep_member.py --member --seed 20261210 --cases "
                                          "3,16,35,64,81,85,93,96 --jobs 2 "
                                          "--out benchmarks/gap_tip/creep_member_built_first_20261210.md",
@@ -660,7 +666,10 @@ def stage_chain_figures() -> list[Fig]:
              ("benchmarks/stage_chain/tip_creep_off_fresh800/records.jsonl", ", fresh seeds 800-803, the creep member "
               "forced off", "stage_chain_tip_creep_off_fresh800"),
              ("benchmarks/stage_chain/tip_creep_fresh800/records.jsonl", ", fresh seeds 800-803, the creep member "
-              "(its first contact; current code)", "stage_chain_tip_creep_fresh800")]
+              "(its first contact)", "stage_chain_tip_creep_fresh800"),
+             ("benchmarks/stage_chain/drift_refit_fresh806/records.jsonl", ", fresh seeds 806-809, the offset drift "
+              "beside the creep member decided against the chain calibrated without it (its first contact; current "
+              "code)", "stage_chain_drift_refit_fresh806")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -689,7 +698,7 @@ def stage_chain_figures() -> list[Fig]:
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
                "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500",
-               "stage_chain_tip_creep_fresh800"}
+               "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)
@@ -928,6 +937,23 @@ def gap_figures() -> list[Fig]:
                        f"{sum(r['case_auto']['tip_creep'] for r in rs)} / {sum(r['twin_auto']['tip_creep'] for r in rs)}"
                        f" of {len(rs)}; {sum(r['case_auto']['offset_drift_dropped'] for r in rs)}",
                        "", "measured", src_, COMMANDS[key], DATES[key]))
+    key = "creep_chain_first_20261211"
+    src_ = f"benchmarks/gap_tip/{key}.jsonl.gz"
+    if (ROOT / src_).exists():
+        from selfsense.gap.blind import _tip_scored
+
+        rs = [json.loads(x) for x in gzip.open(ROOT / src_, "rt")]
+        floor, rows = _tip_scored(rs)
+        sc = [r for r in rows if r["scored"]]
+        med = statistics.median(r["error"] for r in sc) if sc else float("nan")
+        out.append(Fig(f"charge-free creep, how far it shrinks with the creep member in the chain, first contact "
+                       f"({len(rs)} slow.creep tip cases of a seed not used before): named top-1; cases with a real "
+                       "tip consequence (> 3 tip noise floors of these records); median relative error of the "
+                       "predicted tip shrink over the cases named with one; true shrink inside the 90 % interval",
+                       f"{sum(r['named'] for r in rows)} of {len(rs)}; {sum(r['tip_real'] for r in rows)} (floor "
+                       f"{floor:.2f} points); " + (f"{med:.2f}" if sc else "-") + f" over {len(sc)}; "
+                       f"{sum(r['inside'] for r in sc)} of {len(sc)}",
+                       "<= 0.35 per effect family (over a campaign)", "measured", src_, COMMANDS[key], DATES[key]))
     nsrc_ = "benchmarks/gap_tip/absorption_null.jsonl.gz"
     if (ROOT / nsrc_).exists():
         nl = [json.loads(x) for x in gzip.open(ROOT / nsrc_, "rt")]
