@@ -159,7 +159,14 @@ def calibrate(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], c
 def selection_table(est: SelfSensingEstimator) -> pd.DataFrame:
     """The H(q) model-selection table of a fitted estimator: one row per candidate (blocked-CV RMS per fold and mean
     [V], the straight line's mean for comparison, selected flag); empty for the thesis identification."""
-    rep = est.fit_report_.get("hysteresis", {})
+    return selection_frame(est.fit_report_)
+
+
+def selection_frame(fit_report: Mapping[str, Any]) -> pd.DataFrame:
+    """:func:`selection_table` from a fit report (``fit_report`` of a model JSON): the report reads the selection of
+    the final model (``sensing.json``), whose H(q) the sensing regression may have calibrated again (the offset drift
+    beside the creep member, docs/method.md 6h)."""
+    rep = fit_report.get("hysteresis", {})
     nan = float("nan")
     table = [{**r, "cv_rms_v": [nan if v is None else v for v in r["cv_rms_v"]],
               "cv_rms_mean_v": nan if r["cv_rms_mean_v"] is None else r["cv_rms_mean_v"]}
@@ -179,7 +186,10 @@ def selection_table(est: SelfSensingEstimator) -> pd.DataFrame:
 
 def regress(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], hysteresis_json: str | Path,
             out_json: str | Path) -> SelfSensingEstimator:
-    """Regress the sensing coefficients A1-A3 (thesis eq. 52) on the calibration trials."""
+    """Regress the sensing coefficients A1-A3 (thesis eq. 52) on the calibration trials. Where the creep member is
+    carried beside an offset-drift member, H(q) may be calibrated again here without the drift
+    (:meth:`SelfSensingEstimator.fit_coefficients`): ``sensing.json`` is then the model to read, not
+    ``hysteresis.json``."""
     rig = sio.load_rig(dataset_dir)
     est = SelfSensingEstimator.from_dict(json.loads(Path(hysteresis_json).read_text()), rig)
     est.fit_coefficients(_load_signals(signal_paths), _meta(dataset_dir))

@@ -48,7 +48,7 @@ CREEP_TAUS_S = (0.3, 1.0, 3.0, 10.0, 30.0)
 #: (:func:`identifiable_taus`)
 TAU_MAX_PER_RECORD = 3.0
 
-#: the bank must lower the displacement rows' blocked-CV error by more than this fraction to be adopted (it adds
+#: the bank must lower the displacement rows' blocked-CV error by more than this fraction to be adopted (it adds up to
 #: 2 x 5 columns: a gain the size of the offset-drift member's 1 % is within what ten free columns give by chance)
 CREEP_MIN_GAIN = 0.10
 
@@ -89,7 +89,9 @@ def identifiable_taus(durations_s, taus=CREEP_TAUS_S) -> tuple:
     of the order of the signals. A lag the calibration cannot identify is left out rather than regularised: a statement
     about the calibration data, reported with the member (``taus_s``)."""
     longest = max((float(d) for d in durations_s), default=0.0)
-    # (a relative 1e-9 for the rounding of n * dt: a 10-s record at 400 Hz measures 9.9999999999998 s)
+    # (a relative 1e-9 for the rounding of n * dt: a 10-s record at 400 Hz measures 9.9999999999998 s). The bound
+    # is a sharp edge where a calibration trial is exactly a third of a lag (the gap diagnostic's 10-s tip cases and
+    # the 30-s lag): one sample less and that lag is left out.
     return tuple(float(t) for t in taus if t <= TAU_MAX_PER_RECORD * longest * (1.0 + 1e-9))
 
 

@@ -1669,7 +1669,9 @@ class SelfSensingEstimator:
 
     def fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
         """Regress the sensing coefficients (thesis eq. 52, or eq. 46 with ``regression='full'``) on calibration
-        trials only, with H(q) already calibrated (:meth:`fit_hysteresis`)."""
+        trials only, with H(q) already calibrated (:meth:`fit_hysteresis`). Where the creep member is carried beside
+        an offset-drift member adopted by the H(q) fit, H(q) is calibrated again without the drift to decide it
+        (docs/method.md 6h): the H(q) of the result can then differ from the one it started from."""
         if self.hysteresis_ is None:
             raise RuntimeError("fit_coefficients: calibrate H(q) first (fit_hysteresis)")
         cal, cal_trials = self._calibration_set(trials, meta)
@@ -1710,40 +1712,65 @@ class SelfSensingEstimator:
             from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN
 
             cv_od, f_od = self.tip_creep_["cv_rms_m_with"], self._force_rows_cv(rows, True)
-            with_drift = copy.deepcopy(self.__dict__)
+            # the fitted state of the chain with the drift (the caller's rig, configuration and forced members are
+            # the same objects on both sides, never copies)
+            shared = ("rig", "config", "members", "leakage_search_reuse")
+            with_drift = {k: (v if k in shared else copy.deepcopy(v)) for k, v in self.__dict__.items()}
+
+            def restore():
+                self.__dict__.clear()
+                self.__dict__.update(with_drift)
+
             saved, saved_reuse = self.members, self.leakage_search_reuse
             self.members = {**dict(saved or {}), "offset_drift": "off"}
             # the leakage search reads the calibration inputs only (its reference carries the drift columns either
             # way): this fit's search is reused
             self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
+            refit_error = None
             try:
                 self.fit_hysteresis(trials, meta)
+            except Exception as exc:   # noqa: BLE001 -- any failure of the refit leaves the chain with the drift
+                refit_error = exc
             finally:
                 self.members, self.leakage_search_reuse = saved, saved_reuse
-            cal, alt_trials = self._calibration_set(trials, meta)
-            alt_trials = {t: self._with_links(df) for t, df in alt_trials.items()}
-            alt = self._coefficient_rows(alt_trials, cal, taus)
-            self.tip_creep_ = {"mode": creep_mode, "applied": False, "taus_s": list(taus)}
-            alt_on = self._tip_creep_decision(creep_mode, alt)
-            cv_no, f_no = self.tip_creep_["cv_rms_m_with"], self._force_rows_cv(alt, alt_on)
-            keep = bool(cv_od < (1.0 - OFFSET_DRIFT_BESIDE_CREEP_GAIN) * cv_no)
-            check = {"cv_rms_m_with_offset_drift": cv_od, "cv_rms_m_without_offset_drift": cv_no,
-                     "cv_rms_n_with_offset_drift": f_od, "cv_rms_n_without_offset_drift": f_no,
-                     "offset_drift_kept": keep, "h_refitted_without_offset_drift": not keep,
-                     "note": ("offset drift kept beside the creep member" if keep else
-                              "offset drift dropped and H(q) calibrated again without it: with the creep member it "
-                              "does not lower the displacement rows' blocked-CV error by more than "
-                              f"{OFFSET_DRIFT_BESIDE_CREEP_GAIN:.0%} against the chain calibrated without it")
-                     + f" (displacement rows {cv_od:.3g} m with it, {cv_no:.3g} m without; force rows, not deciding, "
-                       f"{f_od:.3g} N with it, {f_no:.3g} N without)"}
-            if keep:
-                self.__dict__.update(with_drift)
+            if refit_error is not None:
+                restore()
+                check = {"cv_rms_m_with_offset_drift": cv_od, "offset_drift_kept": True,
+                         "h_refitted_without_offset_drift": False,
+                         "note": "offset drift kept beside the creep member: H(q) could not be calibrated without it "
+                                 f"({type(refit_error).__name__}: {refit_error})"}
+                self.fit_report_.setdefault("warnings", []).append(check["note"])
             else:
-                rows, creep_on, cal_trials = alt, alt_on, alt_trials
-                drift = self.fit_report_.setdefault("hysteresis", {}).setdefault("drift", {})
-                drift["offset_drift_applied"] = False
-                drift["offset_drift_source"] = "dropped beside the creep member"
-                drift["offset_drift_mode"] = "auto"
+                cal, alt_trials = self._calibration_set(trials, meta)
+                alt_trials = {t: self._with_links(df) for t, df in alt_trials.items()}
+                alt = self._coefficient_rows(alt_trials, cal, taus)
+                self.tip_creep_ = {"mode": creep_mode, "applied": False, "taus_s": list(taus)}
+                alt_on = self._tip_creep_decision(creep_mode, alt)
+                # the error of the chain without the drift as it would be adopted: with the bank where its gate passes
+                cv_no = self.tip_creep_["cv_rms_m_with" if alt_on else "cv_rms_m_without"]
+                f_no = self._force_rows_cv(alt, alt_on)
+                keep = bool(cv_od < (1.0 - OFFSET_DRIFT_BESIDE_CREEP_GAIN) * cv_no)
+                check = {"cv_rms_m_with_offset_drift": cv_od, "cv_rms_m_without_offset_drift": cv_no,
+                         "cv_rms_n_with_offset_drift": f_od, "cv_rms_n_without_offset_drift": f_no,
+                         "offset_drift_kept": keep, "h_refitted_without_offset_drift": not keep,
+                         "note": ("offset drift kept beside the creep member" if keep else
+                                  "offset drift dropped and H(q) calibrated again without it: with the creep member "
+                                  "it does not lower the displacement rows' blocked-CV error by more than "
+                                  f"{OFFSET_DRIFT_BESIDE_CREEP_GAIN:.0%} against the chain calibrated without it")
+                         + f" (displacement rows {cv_od:.3g} m with it, {cv_no:.3g} m without; force rows, not "
+                           f"deciding, {f_od:.3g} N with it, {f_no:.3g} N without)"}
+                if keep:
+                    restore()
+                else:
+                    rows, creep_on, cal_trials = alt, alt_on, alt_trials
+                    drift = self.fit_report_.setdefault("hysteresis", {}).setdefault("drift", {})
+                    drift["offset_drift_applied"] = False
+                    drift["offset_drift_source"] = "dropped beside the creep member"
+                    drift["offset_drift_mode"] = "auto"
+                    drift["note"] = "; ".join(
+                        [x for x in str(drift.get("note", "")).split("; ") if x and not x.startswith("offset-drift")]
+                        + ["offset-drift compensation adopted by the H(q) fit's gate, then dropped beside the creep "
+                           "member: H(q) calibrated again without it (tip_creep.offset_drift_check)"])
             self.tip_creep_["offset_drift_check"] = check
         Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, _ = rows
         dx0 = 0.0
@@ -1870,8 +1897,11 @@ class SelfSensingEstimator:
             return False
         if not K.shape[1]:
             info.update({"supported": False, "source": "none"})
-            info["note"] = ("creep member not carried: no lag of the bank is identifiable from the calibration trials "
-                            "(every lag is longer than the longest of them; chain.creep.identifiable_taus)")
+            info["note"] = (("creep member forced on but not carried" if mode == "on" else "creep member not carried")
+                            + ": no lag of the bank is identifiable from the calibration trials (every lag is longer "
+                            "than three times the longest of them; chain.creep.identifiable_taus)")
+            if mode == "on":
+                self.fit_report_.setdefault("warnings", []).append(info["note"])
             return False
         held = blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)
         without, with_ = _blocked_cv_rms(base, y, held), _blocked_cv_rms(np.column_stack([base, K]), y, held)
