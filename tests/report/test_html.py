@@ -135,3 +135,23 @@ def test_model_selection_table(results):
     assert [c for c, _ in rows] == ["", "", "selected"]
     assert "<td>ri</td>" in rows[2][1] and "The selected model (highlighted) is ri" in page
     assert raw_markup(_visible(page)) == []
+
+
+def test_model_selection_table_is_the_final_models(results):
+    """The sensing regression may calibrate H(q) again (the offset drift beside the creep member): the report shows
+    the selection of the final model (sensing.json), not the calibration's h_selection.csv."""
+    pd.DataFrame({"model": ["linear", "stale"], "kind": ["linear", "preisach"], "cv_rms_mean_V": [0.5, 0.1],
+                  "selected": [False, True]}).to_csv(results / "model" / "h_selection.csv", index=False)
+    p = results / "model" / "sensing.json"
+    d = json.loads(p.read_text())
+    d.setdefault("fit_report", {}).setdefault("hysteresis", {})["selection"] = [
+        {"label": "linear", "kind": "linear", "cv_rms_v": [0.5, 0.6], "cv_rms_mean_v": 0.55, "selected": False,
+         "status": "ok"},
+        {"label": "final-preisach", "kind": "preisach", "cv_rms_v": [0.2, None], "cv_rms_mean_v": 0.2,
+         "selected": True, "status": "ok"}]
+    p.write_text(json.dumps(d))
+    page = build_report(SAMPLE, results, [])
+    assert "<h2>H(q) model selection</h2>" in page
+    assert "final-preisach" in page and "stale" not in page
+    rows = re.findall(r"<tr class='([^']*)'>(.*?)</tr>", page)
+    assert [c for c, _ in rows] == ["", "selected"]

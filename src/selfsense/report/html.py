@@ -284,14 +284,13 @@ def _selection_section(results_dir: Path) -> list[str]:
     """The H-model selection table of the final model (results/<d>/model/sensing.json: the sensing regression may
     have calibrated H(q) again), else the calibration's results/<d>/model/h_selection.csv."""
     model, p = results_dir / "model" / "sensing.json", results_dir / "model" / "h_selection.csv"
+    df = pd.DataFrame()
     if model.exists():
         from selfsense.stages import selection_frame
 
         df = selection_frame(json.loads(model.read_text()).get("fit_report", {}))
-    elif p.exists():
+    if df.empty and p.exists():
         df = pd.read_csv(p)
-    else:
-        return []
     if df.empty:
         return []
     sel_col = next((c for c in df.columns if c.lower() in ("selected", "is_selected")), None)
