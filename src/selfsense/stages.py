@@ -159,29 +159,9 @@ def calibrate(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], c
 def selection_table(est: SelfSensingEstimator) -> pd.DataFrame:
     """The H(q) model-selection table of a fitted estimator: one row per candidate (blocked-CV RMS per fold and mean
     [V], the straight line's mean for comparison, selected flag); empty for the thesis identification."""
+    from selfsense.report.tables import selection_frame
+
     return selection_frame(est.fit_report_)
-
-
-def selection_frame(fit_report: Mapping[str, Any]) -> pd.DataFrame:
-    """:func:`selection_table` from a fit report (``fit_report`` of a model JSON): the report reads the selection of
-    the final model (``sensing.json``), whose H(q) the sensing regression may have calibrated again (the offset drift
-    beside the creep member, docs/method.md 6h)."""
-    rep = fit_report.get("hysteresis", {})
-    nan = float("nan")
-    table = [{**r, "cv_rms_v": [nan if v is None else v for v in r["cv_rms_v"]],
-              "cv_rms_mean_v": nan if r["cv_rms_mean_v"] is None else r["cv_rms_mean_v"]}
-             for r in rep.get("selection") or []]
-    lin = next((r["cv_rms_mean_v"] for r in table if r["kind"] == "linear"), float("nan"))
-    rows = []
-    for r in table:
-        row = {"model": r["label"], "kind": r["kind"]}
-        for i, v in enumerate(r["cv_rms_v"], 1):
-            row[f"cv_rms_fold{i}_V"] = v
-        row.update({"cv_rms_mean_V": r["cv_rms_mean_v"], "linear_baseline_rms_V": lin,
-                    "beats_linear": bool(r["cv_rms_mean_v"] < lin) if r["kind"] != "linear" else "",
-                    "selected": bool(r["selected"]), "status": r["status"]})
-        rows.append(row)
-    return pd.DataFrame(rows)
 
 
 def regress(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], hysteresis_json: str | Path,

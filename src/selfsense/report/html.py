@@ -286,7 +286,7 @@ def _selection_section(results_dir: Path) -> list[str]:
     model, p = results_dir / "model" / "sensing.json", results_dir / "model" / "h_selection.csv"
     df = pd.DataFrame()
     if model.exists():
-        from selfsense.stages import selection_frame
+        from selfsense.report.tables import selection_frame
 
         df = selection_frame(json.loads(model.read_text()).get("fit_report", {}))
     if df.empty and p.exists():

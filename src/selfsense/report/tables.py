@@ -6,7 +6,7 @@ Table 3 averages the validation trials of each measurement.
 """
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
@@ -117,3 +117,25 @@ def per_trial_markdown(pt: pd.DataFrame) -> str:
             f"{_fmt(r['mean_abs_error'], unit)} | {_fmt(r['percent_of_range'])} % |"
         )
     return "\n".join(lines) + "\n"
+
+
+def selection_frame(fit_report: Mapping[str, Any]) -> pd.DataFrame:
+    """The H(q) model-selection table (:func:`selfsense.stages.selection_table`) from a fit report (``fit_report`` of
+    a model JSON): the report reads the selection of the final model (``sensing.json``), whose H(q) the sensing
+    regression may have calibrated again (the offset drift beside the creep member, docs/method.md 6h)."""
+    rep = fit_report.get("hysteresis", {})
+    nan = float("nan")
+    table = [{**r, "cv_rms_v": [nan if v is None else v for v in r["cv_rms_v"]],
+              "cv_rms_mean_v": nan if r["cv_rms_mean_v"] is None else r["cv_rms_mean_v"]}
+             for r in rep.get("selection") or []]
+    lin = next((r["cv_rms_mean_v"] for r in table if r["kind"] == "linear"), float("nan"))
+    rows = []
+    for r in table:
+        row = {"model": r["label"], "kind": r["kind"]}
+        for i, v in enumerate(r["cv_rms_v"], 1):
+            row[f"cv_rms_fold{i}_V"] = v
+        row.update({"cv_rms_mean_V": r["cv_rms_mean_v"], "linear_baseline_rms_V": lin,
+                    "beats_linear": bool(r["cv_rms_mean_v"] < lin) if r["kind"] != "linear" else "",
+                    "selected": bool(r["selected"]), "status": r["status"]})
+        rows.append(row)
+    return pd.DataFrame(rows)
