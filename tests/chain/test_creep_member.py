@@ -4,6 +4,7 @@ adopted where it lowers their blocked-CV error, carried into the force row by on
 same device without creep."""
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -157,6 +158,18 @@ def test_offset_drift_re_decided_beside_the_creep_member():
     drift = est.fit_report_["hysteresis"]["drift"]
     assert drift["offset_drift_applied"] is False and "creep" in drift["offset_drift_source"]
     assert est.members == {"tip_creep": "auto"}          # the forced "off" of the refit is not left behind
+    # the gap diagnostic's recalibrations share one H(q) calibration between member sets that differ by the creep
+    # member alone (it enters no H(q) row): the sensing regression run on a copy of the H(q)-calibrated state is the
+    # whole fit, bit for bit, also where it calibrates H(q) again without the drift
+    from selfsense.gap.counterfactual import OUTSIDE_H_MEMBERS
+
+    assert "tip_creep" in OUTSIDE_H_MEMBERS
+    h = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"tip_creep": "off"}).fit_hysteresis(tr, me)
+    shared = copy.deepcopy(h)
+    shared.members = {"tip_creep": "auto"}
+    shared.fit_coefficients(tr, me)
+    assert shared.coef_ == est.coef_ and shared.tip_creep_["beta"] == est.tip_creep_["beta"]
+    assert shared.offset_drift_ == est.offset_drift_ and shared.leakage_s_ == est.leakage_s_
     off = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"offset_drift": "off"}).fit(tr, me)
     assert off.coef_ == est.coef_ and off.tip_creep_["beta"] == est.tip_creep_["beta"]
     for t in me.index[me["role"] == "validation"]:

@@ -248,8 +248,8 @@ def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
 
 def test_a_recalibration_holds_the_h_form_except_for_a_member_forced_on():
     """A data correction and a carried member forced off keep the fitted H(q) form (refitted without the CV); a member
-    forced on runs the whole selection (``h_candidates`` left to the configuration), as the estimator a user gets
-    with the member does."""
+    forced on that enters the H(q) rows runs the whole selection (``h_candidates`` left to the configuration), as the
+    estimator a user gets with the member does."""
     from selfsense.gap.counterfactual import _make
 
     class Est:
@@ -259,9 +259,13 @@ def test_a_recalibration_holds_the_h_form_except_for_a_member_forced_on():
     for mem in (None, {}, {"leakage": "off"}, {"leakage": "off", "hold_rows": "off"}):
         e = _make(lambda r: Est(), None, mem, form)
         assert e.h_candidates == form and e.h_selection_cv is False
-    for mem in ({"stress": "on"}, {"stress": "on", "leakage": "off"}):
+    for mem in ({"stress": "on"}, {"stress": "on", "leakage": "off"}, {"stress": "on", "tip_creep": "on"}):
         e = _make(lambda r: Est(), None, mem, form)
         assert e.h_candidates == () and e.h_selection_cv is True and e.members == mem
+    # the tip's creep member enters no row of the H(q) fit: forced on, the form is still held
+    for mem in ({"tip_creep": "on"}, {"tip_creep": "on", "leakage": "off"}):
+        e = _make(lambda r: Est(), None, mem, form)
+        assert e.h_candidates == form and e.h_selection_cv is False and e.members == mem
 
 
 def test_a_member_forced_on_is_identified_jointly_with_the_h_selection():

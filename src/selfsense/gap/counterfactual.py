@@ -35,6 +35,7 @@ together" joins the confirmed effects whose model, added alone, does not make Ta
 """
 from __future__ import annotations
 
+import copy
 from typing import Callable, Sequence
 
 import numpy as np
@@ -57,6 +58,9 @@ CORRECTION_KIND = {
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
     "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
     "load.stress_hysteresis@blocked_h": "voltage_blk"}
+#: chain members that enter no row of the H(q) fit (the tip's charge-free creep: columns of the sensing regression,
+#: identified after H(q)); a recalibration with one of them forced on keeps the held H(q) form (:func:`_make`)
+OUTSIDE_H_MEMBERS = frozenset({"tip_creep"})
 N_BLOCKS = 6
 
 
@@ -155,11 +159,16 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     estimator the user gets with it. Held, it answered another question: on the joint tip cases 37 and 5 of seed
     20261204 (stress-dependent hysteresis, effect-free twins 3.52 and 4.23 %) the stress member gave 15.79 and 11.57 %
     with the form held, 2.16 and 3.97 % with the selection (a Duhem form, ranked 1st and 8th without the member). A
-    carried member forced *off* (its contribution) keeps the form it was selected with."""
+    carried member forced *off* (its contribution) keeps the form it was selected with. So does a member forced on
+    that enters no row of the H(q) fit (:data:`OUTSIDE_H_MEMBERS`: the tip's charge-free creep, identified after H(q)
+    in the sensing regression): the whole selection would run on the rows the held form was selected on, or on rows
+    that differ from those of the chain without the member by nothing the member does (measured on tweezer_sim:
+    three such selections, 8-10 s each, of the gap rule's 52 s, each selecting the held form)."""
     est = make_estimator(rig)
     if hasattr(est, "h_selection_prune"):   # only the selected row is read here: dominated candidates are stopped
         est.h_selection_prune = True
-    if form and "on" not in (members or {}).values() and hasattr(est, "h_candidates"):
+    forced_on = {k for k, v in (members or {}).items() if v == "on"}
+    if form and not (forced_on - OUTSIDE_H_MEMBERS) and hasattr(est, "h_candidates"):
         est.h_candidates, est.h_selection_cv = tuple(form), False
     if reuse and hasattr(est, "leakage_search_reuse"):
         est.leakage_search_reuse = dict(reuse)
@@ -318,6 +327,13 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
 
     searches: dict = {}   # the leakage search of a recalibration, by the input corrections it was fitted on
 
+    h_fits: dict = {}   # estimators with H(q) calibrated, before the sensing regression, by h_key
+
+    def h_key(k):
+        """The part of a recalibration's key that its H(q) calibration reads: the input corrections and the forced
+        members that enter the H(q) rows (not :data:`OUTSIDE_H_MEMBERS`)."""
+        return k[0], tuple(m for m in k[1] if m[0] not in OUTSIDE_H_MEMBERS)
+
     def refit(k):
         S_fit, mem_items = k
         tr_fit, _ = _apply(trials, [corr[n] for n in sorted(S_fit)], meta)
@@ -325,7 +341,19 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         # same corrected inputs as an earlier one takes that one's search over (the estimator checks the inputs'
         # digest and searches again where it differs), else the fitted estimator's (valid without input corrections)
         est = _make(make_estimator, rig, dict(mem_items), form, searches.get(S_fit) or _search_of(fitted))
-        est = est.fit(tr_fit, meta)
+        if not (hasattr(est, "fit_hysteresis") and hasattr(est, "fit_coefficients")):
+            est = est.fit(tr_fit, meta)
+        elif h_key(k) in h_fits:
+            # the same H(q) calibration as an earlier recalibration's (they differ by members outside the H rows,
+            # which its calibration does not read): its state taken over, the sensing regression run with these
+            # members -- the estimator that est.fit gives, without calibrating H(q) a second time
+            done = copy.deepcopy(h_fits[h_key(k)])
+            done.members = est.members
+            est = done.fit_coefficients(tr_fit, meta)
+        else:
+            est = est.fit_hysteresis(tr_fit, meta)
+            h_fits[h_key(k)] = copy.deepcopy(est)
+            est = est.fit_coefficients(tr_fit, meta)
         got = _search_of(est)
         if got and got.get("g_folds") is not None and S_fit not in searches:
             searches[S_fit] = got
