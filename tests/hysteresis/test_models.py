@@ -537,3 +537,20 @@ def test_pruned_selection_stops_a_linear_candidate_on_its_blocks_own_residuals()
     assert [r["status"] for r in pruned.table][-1] == PRUNED_BLOCKS_STATUS
     assert full.table[-1]["cv_rms_mean_v"] > best["cv_rms_mean_v"]
     assert pruned.table[:-1] == full.table[:-1]
+
+
+def test_blocked_householder_factor_is_numpys_factor():
+    """qr_reduce's triangular factor (LAPACK dgeqrt, panels of QR_PANEL columns) is numpy's Householder factor up to
+    rounding, with the same signs, for tall, square and wide blocks and panels wider than the block; a row of NaN
+    propagates instead of being dropped."""
+    import selfsense.hysteresis.models as M
+
+    rng = np.random.default_rng(11)
+    for shape in ((4096, 157), (300, 40), (40, 40), (7, 30), (1, 5), (50, 1)):
+        A = rng.standard_normal(shape) * np.logspace(-2, 3, shape[1])
+        R, ref = M._qr_r(A), np.linalg.qr(A, mode="r")
+        assert R.shape == ref.shape and np.array_equal(R, np.triu(R)), shape
+        np.testing.assert_allclose(R, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    A = rng.standard_normal((100, 6))
+    A[17, 2] = np.nan
+    assert np.isnan(M._qr_r(A)).any()
