@@ -32,7 +32,7 @@ import logging
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -584,6 +584,22 @@ def _json_safe_report(rep: Mapping[str, Any]) -> dict:
     if isinstance(h, Mapping) and h.get("selection"):
         out["hysteresis"] = {**h, "selection": json_safe_table(list(h["selection"]))}
     return out
+
+
+class CoefficientRows(NamedTuple):
+    """The rows of the sensing-coefficient regression (:meth:`SelfSensingEstimator._coefficient_rows`)."""
+
+    Xd: np.ndarray           #: ``[Q, V_p]`` of the displacement rows (free-tip laser, the blocked tip's dx = 0)
+    yd: np.ndarray           #: their targets [m]
+    Xf: np.ndarray           #: ``[Q, V_p]`` of the force rows (load cell, the free tip's f = 0)
+    yf: np.ndarray           #: their targets [N]
+    lengths_d: list          #: displacement rows per segment
+    rest_ok: bool            #: the rest offset adopted (:func:`_rest_offset`)
+    rest_info: dict          #: its numbers and note
+    base: np.ndarray         #: the displacement rows' two-port columns (with the rest offset's where adopted)
+    Kd: np.ndarray           #: the creep bank's columns of the displacement rows (none without lags)
+    Kf: np.ndarray           #: and of the force rows
+    lengths_f: list          #: force rows per segment
 
 
 @dataclass
@@ -1829,13 +1845,12 @@ class SelfSensingEstimator:
             self._stress_load_ridge(cal_trials, cal)
         return self
 
-    def _coefficient_rows(self, cal_trials, cal, taus) -> tuple:
-        """The rows of the sensing-coefficient regression with the chain's current members: ``(Xd, yd, Xf, yf,
-        lengths_d, rest_ok, rest_info, base, Kd, Kf, lengths_f)`` -- ``[Q, V_p]`` and targets of the displacement rows (free-tip
-        laser, the blocked tip's ``dx = 0``) and of the force rows (load cell, the free tip's ``f = 0``), the rows
-        per displacement segment, the rest-offset decision (:func:`_rest_offset`), the displacement rows' two-port
-        columns (with the rest offset's where adopted), the creep bank's columns of both (lags ``taus``, none where
-        empty: :func:`selfsense.chain.creep.creep_columns`) and the rows per force segment."""
+    def _coefficient_rows(self, cal_trials, cal, taus) -> CoefficientRows:
+        """The rows of the sensing-coefficient regression with the chain's current members (:class:`CoefficientRows`:
+        ``[Q, V_p]`` and targets of the displacement rows (free-tip laser, the blocked tip's ``dx = 0``) and of the
+        force rows (load cell, the free tip's ``f = 0``), the rows per segment, the rest-offset decision
+        (:func:`_rest_offset`), the displacement rows' two-port columns (with the rest offset's where adopted) and the
+        creep bank's columns of both (lags ``taus``, none where empty: :func:`selfsense.chain.creep.creep_columns`))."""
         from selfsense.chain.creep import creep_columns
 
         Xd, yd, Xf, yf = [], [], [], []
@@ -1867,30 +1882,33 @@ class SelfSensingEstimator:
         rest_ok, rest_info = (_rest_offset(Xd, yd, lengths_d) if self.config.rest_offset == "auto"
                               else (False, {"applied": False, "note": "rest offset off (config rest_offset: off)"}))
         base = np.column_stack([Xd, np.ones(len(Xd))]) if rest_ok else Xd
-        return Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, lengths_f
+        return CoefficientRows(Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, lengths_f)
 
-    def _force_rows_cv(self, rows: tuple, creep_on: bool) -> float:
+    def _row_folds(self, lengths) -> list:
+        """The blocked folds of the coefficient rows' CV (:meth:`_tip_creep_decision`, :meth:`_force_rows_cv`):
+        ``cv_blocks`` (at least 2) contiguous blocks per segment, not rotated, as :func:`_rest_offset` folds."""
+        from selfsense.hysteresis.models.select import blocked_folds
+
+        return blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)
+
+    def _force_rows_cv(self, rows: CoefficientRows, creep_on: bool) -> float:
         """Blocked-CV RMS [N] of the force rows of :meth:`_coefficient_rows` regressed on ``[Q, V_p]`` (thesis eq. 46)
         and, where the creep member is carried, its creep signal ``K beta`` (``beta`` fitted on the displacement
         rows): the force side of the offset-drift re-decision beside the creep member (:meth:`fit_coefficients`)."""
-        from selfsense.hysteresis.models.select import blocked_folds
-
-        _, yd, Xf, yf, _, _, _, base, Kd, Kf, lengths_f = rows
-        A = Xf
+        A = rows.Xf
         if creep_on:
-            beta = _lstsq(np.column_stack([base, Kd]), yd)[base.shape[1]:]
-            A = np.column_stack([Xf, Kf @ beta])
-        return _blocked_cv_rms(A, yf, blocked_folds(lengths_f, max(int(self.config.cv_blocks), 2), rotate=False))
+            beta = _lstsq(np.column_stack([rows.base, rows.Kd]), rows.yd)[rows.base.shape[1]:]
+            A = np.column_stack([rows.Xf, rows.Kf @ beta])
+        return _blocked_cv_rms(A, rows.yf, self._row_folds(rows.lengths_f))
 
-    def _tip_creep_decision(self, mode: str, rows: tuple) -> bool:
+    def _tip_creep_decision(self, mode: str, rows: CoefficientRows) -> bool:
         """Whether the creep member (:mod:`selfsense.chain.creep`) is carried: forced ("on" / "off"), or where its
         bank lowers the blocked-CV RMS of the displacement rows (:meth:`_coefficient_rows`: the two-port's columns,
         with the rest offset where adopted) by more than :data:`~selfsense.chain.creep.CREEP_MIN_GAIN`; folds as
         :func:`_rest_offset`. The numbers and the decision go to :attr:`tip_creep_`."""
         from selfsense.chain.creep import CREEP_MIN_GAIN, creep_supported
-        from selfsense.hysteresis.models.select import blocked_folds
 
-        _, y, _, _, lengths, _, _, base, K, _, _ = rows
+        y, base, K = rows.yd, rows.base, rows.Kd
         info = self.tip_creep_
         if mode == "off":
             info["note"] = "creep member off (config tip_creep: off or member forced off)"
@@ -1903,7 +1921,7 @@ class SelfSensingEstimator:
             if mode == "on":
                 self.fit_report_.setdefault("warnings", []).append(info["note"])
             return False
-        held = blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)
+        held = self._row_folds(rows.lengths_d)
         without, with_ = _blocked_cv_rms(base, y, held), _blocked_cv_rms(np.column_stack([base, K]), y, held)
         supported = creep_supported(with_, without)
         on = mode == "on" or supported
