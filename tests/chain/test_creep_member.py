@@ -170,6 +170,12 @@ def test_offset_drift_re_decided_beside_the_creep_member():
     shared.fit_coefficients(tr, me)
     assert shared.coef_ == est.coef_ and shared.tip_creep_["beta"] == est.tip_creep_["beta"]
     assert shared.offset_drift_ == est.offset_drift_ and shared.leakage_s_ == est.leakage_s_
+    assert (json.dumps(shared.hysteresis_.to_dict(), sort_keys=True, default=repr)
+            == json.dumps(est.hysteresis_.to_dict(), sort_keys=True, default=repr))
+    for t in me.index[me["role"] == "validation"]:
+        a, b = est.estimate(tr[t]), shared.estimate(tr[t])
+        assert np.array_equal(a["dx_hat"].to_numpy(), b["dx_hat"].to_numpy(), equal_nan=True)
+        assert np.array_equal(a["f_hat"].to_numpy(), b["f_hat"].to_numpy(), equal_nan=True)
     off = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"offset_drift": "off"}).fit(tr, me)
     assert off.coef_ == est.coef_ and off.tip_creep_["beta"] == est.tip_creep_["beta"]
     for t in me.index[me["role"] == "validation"]:

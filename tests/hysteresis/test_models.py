@@ -541,8 +541,8 @@ def test_pruned_selection_stops_a_linear_candidate_on_its_blocks_own_residuals()
 
 def test_blocked_householder_factor_is_numpys_factor():
     """qr_reduce's triangular factor (LAPACK dgeqrt, panels of QR_PANEL columns) is numpy's Householder factor up to
-    rounding, with the same signs, for tall, square and wide blocks and panels wider than the block; a row of NaN
-    propagates instead of being dropped."""
+    rounding, with the same signs, for tall, square and wide blocks and panels wider than the block; an empty block
+    gives an empty factor; a NaN propagates instead of being dropped."""
     import selfsense.hysteresis.models as M
 
     rng = np.random.default_rng(11)
@@ -551,6 +551,7 @@ def test_blocked_householder_factor_is_numpys_factor():
         R, ref = M._qr_r(A), np.linalg.qr(A, mode="r")
         assert R.shape == ref.shape and np.array_equal(R, np.triu(R)), shape
         np.testing.assert_allclose(R, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    assert M._qr_r(np.zeros((0, 4))).shape == (0, 4) and M._qr_r(np.zeros((3, 0))).shape == (0, 0)
     A = rng.standard_normal((100, 6))
     A[17, 2] = np.nan
     assert np.isnan(M._qr_r(A)).any()

@@ -161,9 +161,10 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     with the form held, 2.16 and 3.97 % with the selection (a Duhem form, ranked 1st and 8th without the member). A
     carried member forced *off* (its contribution) keeps the form it was selected with. So does a member forced on
     that enters no row of the H(q) fit (:data:`OUTSIDE_H_MEMBERS`: the tip's charge-free creep, identified after H(q)
-    in the sensing regression): the whole selection would run on the rows the held form was selected on, or on rows
-    that differ from those of the chain without the member by nothing the member does (measured on tweezer_sim:
-    three such selections, 8-10 s each, of the gap rule's 52 s, each selecting the held form)."""
+    in the sensing regression): its H(q) selection would run on the very rows of the chain without the member
+    (measured on tweezer_sim: three such selections, 8-10 s each, of the gap job's 52 s, each selecting the held
+    form). Where the creep member then calibrates H(q) again without an adopted offset drift (docs/method.md 6h), that
+    refit keeps the held form too, as a member forced off does."""
     est = make_estimator(rig)
     if hasattr(est, "h_selection_prune"):   # only the selected row is read here: dominated candidates are stopped
         est.h_selection_prune = True
@@ -177,6 +178,14 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
             raise TypeError(f"{type(est).__name__} carries no chain members; cannot force {sorted(members)}")
         est.members = dict(members)
     return est
+
+
+def _splits_fit(est) -> bool:
+    """Whether ``est.fit`` is :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.fit` itself (H(q) calibrated,
+    then the sensing regression), so that a recalibration may run the two apart and share the first."""
+    from selfsense.sensing.estimator import SelfSensingEstimator
+
+    return isinstance(est, SelfSensingEstimator) and type(est).fit is SelfSensingEstimator.fit
 
 
 def adopted_members(fitted) -> dict:
@@ -328,11 +337,20 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     searches: dict = {}   # the leakage search of a recalibration, by the input corrections it was fitted on
 
     h_fits: dict = {}   # estimators with H(q) calibrated, before the sensing regression, by h_key
+    h_users: dict = {}  # h_key -> the planned recalibrations (keys) that have not yet read it
 
     def h_key(k):
         """The part of a recalibration's key that its H(q) calibration reads: the input corrections and the forced
         members that enter the H(q) rows (not :data:`OUTSIDE_H_MEMBERS`)."""
         return k[0], tuple(m for m in k[1] if m[0] not in OUTSIDE_H_MEMBERS)
+
+    def plan(items) -> None:
+        """Note the recalibrations that ``items`` ((S, bare, mem) as :func:`planned` yields) will need, so that an
+        H(q) calibration is kept for a later one only where one is planned."""
+        for S, bare, mem in items:
+            k = refit_key(S, members_of(S, bare) if mem is None else mem)
+            if k is not None and k not in ests:
+                h_users.setdefault(h_key(k), set()).add(k)
 
     def refit(k):
         S_fit, mem_items = k
@@ -341,18 +359,26 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         # same corrected inputs as an earlier one takes that one's search over (the estimator checks the inputs'
         # digest and searches again where it differs), else the fitted estimator's (valid without input corrections)
         est = _make(make_estimator, rig, dict(mem_items), form, searches.get(S_fit) or _search_of(fitted))
-        if not (hasattr(est, "fit_hysteresis") and hasattr(est, "fit_coefficients")):
+        hk = h_key(k)
+        later = h_users.get(hk, set()) - {k}
+        h_users[hk] = later
+        if not _splits_fit(est):
             est = est.fit(tr_fit, meta)
-        elif h_key(k) in h_fits:
+        elif hk in h_fits:
             # the same H(q) calibration as an earlier recalibration's (they differ by members outside the H rows,
-            # which its calibration does not read): its state taken over, the sensing regression run with these
-            # members -- the estimator that est.fit gives, without calibrating H(q) a second time
-            done = copy.deepcopy(h_fits[h_key(k)])
-            done.members = est.members
+            # which its calibration does not read): its state taken over (rig and configuration shared, as a fit
+            # shares them), the sensing regression run with these members -- the estimator that est.fit gives,
+            # without calibrating H(q) a second time
+            done = h_fits[hk] if not later else copy.deepcopy(h_fits[hk], {id(est.rig): est.rig,
+                                                                            id(est.config): est.config})
+            if not later:
+                del h_fits[hk]
+            done.members, done.leakage_search_reuse = est.members, est.leakage_search_reuse
             est = done.fit_coefficients(tr_fit, meta)
         else:
             est = est.fit_hysteresis(tr_fit, meta)
-            h_fits[h_key(k)] = copy.deepcopy(est)
+            if later:   # kept only where a planned recalibration will read it (memory: one estimator's trials)
+                h_fits[hk] = copy.deepcopy(est, {id(est.rig): est.rig, id(est.config): est.config})
             est = est.fit_coefficients(tr_fit, meta)
         got = _search_of(est)
         if got and got.get("g_folds") is not None and S_fit not in searches:
@@ -417,26 +443,32 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             return
         # the recalibrations are independent: each, with the tables scored on it, in a process of its own (the fits
         # hold the GIL most of the time, so threads would take turns); the tables come back, not the estimators
-        groups: dict = {}
+        groups: dict = {}   # h_key -> recalibration key -> the tables scored on it: one H(q) calibration per unit
         for S, bare, mem in planned(players):
             mem = members_of(S, bare) if mem is None else mem
             k = refit_key(S, mem)
-            if k is not None and (S, tuple(sorted(mem.items()))) not in tabs and (S, mem) not in groups.get(k, []):
-                groups.setdefault(k, []).append((S, mem))
-        if len(groups) > 1:
-            def unit(k):
-                est = refit(k)
-                out, mine = {}, {}
-                for S, mem in groups[k]:
-                    tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
-                    out[(S, tuple(sorted(mem.items())))] = tip_table(tr, meta, rig, make_estimator, oc,
-                                                                     estimator=est, members=mem, form=form,
-                                                                     seen=mine, inputs_of=inputs_in(S))
+            if k is not None and (S, tuple(sorted(mem.items()))) not in tabs:
+                per = groups.setdefault(h_key(k), {}).setdefault(k, [])
+                if (S, mem) not in per:
+                    per.append((S, mem))
+        if sum(len(g) for g in groups.values()) > 1:
+            def unit(hk):
+                out = {}
+                for k, wanted in groups[hk].items():
+                    est, mine = refit(k), {}
+                    for S, mem in wanted:
+                        tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
+                        out[(S, tuple(sorted(mem.items())))] = tip_table(tr, meta, rig, make_estimator, oc,
+                                                                         estimator=est, members=mem, form=form,
+                                                                         seen=mine, inputs_of=inputs_in(S))
                 return out
 
             for done in fork_map(unit, list(groups), workers):
                 tabs.update(done)
+            for hk, per in groups.items():   # read in the workers: no H(q) calibration is kept here for them
+                h_users[hk] = h_users.get(hk, set()) - set(per)
 
+    plan(planned())
     prefetch()
     fitted_tab = table(frozenset(), bare=False)
     res = {"before": _summary(fitted_tab), "per_trial_before": {t: r["error"] for t, r in fitted_tab.items()},
@@ -481,6 +513,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
     res["joint_effects"] = joint
     res["joint_left_out"] = {n: f"its model alone makes Table 3 worse ({res['effects'][n]['shrink']:+.2f} points)"
                              for n in names if n not in joint}
+    plan(planned(joint))
     prefetch(joint)
     for S in shapley_subsets(joint):
         table(frozenset(S))

@@ -1886,7 +1886,8 @@ class SelfSensingEstimator:
 
     def _row_folds(self, lengths) -> list:
         """The blocked folds of the coefficient rows' CV (:meth:`_tip_creep_decision`, :meth:`_force_rows_cv`):
-        ``cv_blocks`` (at least 2) contiguous blocks per segment, not rotated, as :func:`_rest_offset` folds."""
+        ``cv_blocks`` (at least 2) contiguous blocks per segment, not rotated (:func:`_rest_offset` folds the same
+        way, with 5 blocks)."""
         from selfsense.hysteresis.models.select import blocked_folds
 
         return blocked_folds(lengths, max(int(self.config.cv_blocks), 2), rotate=False)

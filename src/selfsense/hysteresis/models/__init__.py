@@ -444,7 +444,9 @@ def _qr_r(A: np.ndarray) -> np.ndarray:
 
     n, p = A.shape
     k = min(n, p)
-    a, _, info = lapack.dgeqrt(max(1, min(QR_PANEL, k)), np.asfortranarray(A, dtype=float))
+    if k == 0:
+        return np.zeros((0, p))
+    a, _, info = lapack.dgeqrt(min(QR_PANEL, k), np.array(A, dtype=float, order="F"), overwrite_a=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"QR factorisation failed (LAPACK dgeqrt info {info})")
     return np.triu(a[:k])
