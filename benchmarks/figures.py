@@ -57,6 +57,7 @@ DATES = {
     "stage_chain_tip_creep_fresh800": "2026-12-03",
     "stage_chain_drift_refit_fresh806": "2026-12-03",
     "creep_chain_first_20261211": "2026-12-03",
+    "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
     "gap_tip_90210": "2026-11-26",
     "gap_tip_27182": "2026-11-26",
@@ -243,6 +244,8 @@ COMMANDS = {
                                         "--out benchmarks/stage_chain/drift_refit_fresh806",
     "creep_chain_first_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
                                   "--jobs 2 --out benchmarks/gap_tip/creep_chain_first_20261211.md",
+    "creep_chain_held_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
+                                 "--jobs 2 --out benchmarks/gap_tip/creep_chain_held_20261211.md",
     "creep_member_built_first_20261210": "python benchmarks/creep_member.py --member --seed 20261210 --cases "
                                          "3,16,35,64,81,85,93,96 --jobs 2 "
                                          "--out benchmarks/gap_tip/creep_member_built_first_20261210.md",
