@@ -35,7 +35,6 @@ together" joins the confirmed effects whose model, added alone, does not make Ta
 """
 from __future__ import annotations
 
-import copy
 from typing import Callable, Sequence
 
 import numpy as np
@@ -369,8 +368,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             # which its calibration does not read): its state taken over (rig and configuration shared, as a fit
             # shares them), the sensing regression run with these members -- the estimator that est.fit gives,
             # without calibrating H(q) a second time
-            done = h_fits[hk] if not later else copy.deepcopy(h_fits[hk], {id(est.rig): est.rig,
-                                                                            id(est.config): est.config})
+            done = h_fits[hk] if not later else h_fits[hk].fitted_copy()
             if not later:
                 del h_fits[hk]
             done.members, done.leakage_search_reuse = est.members, est.leakage_search_reuse
@@ -378,7 +376,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         else:
             est = est.fit_hysteresis(tr_fit, meta)
             if later:   # kept only where a planned recalibration will read it (memory: one estimator's trials)
-                h_fits[hk] = copy.deepcopy(est, {id(est.rig): est.rig, id(est.config): est.config})
+                h_fits[hk] = est.fitted_copy()
             est = est.fit_coefficients(tr_fit, meta)
         got = _search_of(est)
         if got and got.get("g_folds") is not None and S_fit not in searches:

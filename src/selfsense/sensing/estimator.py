@@ -1723,15 +1723,12 @@ class SelfSensingEstimator:
             # the bank) by more than OFFSET_DRIFT_BESIDE_CREEP_GAIN (docs/method.md 6h). The force rows' blocked-CV
             # errors are recorded beside it: they do not tell the cases apart where keeping the drift helps from
             # those where it costs (benchmarks/gap_tip/drift_beside_creep.md), so they do not decide.
-            import copy
-
             from selfsense.chain.creep import OFFSET_DRIFT_BESIDE_CREEP_GAIN
 
             cv_od, f_od = self.tip_creep_["cv_rms_m_with"], self._force_rows_cv(rows, True)
             # the fitted state of the chain with the drift (the caller's rig, configuration and forced members are
             # the same objects on both sides, never copies)
-            shared = ("rig", "config", "members", "leakage_search_reuse")
-            with_drift = {k: (v if k in shared else copy.deepcopy(v)) for k, v in self.__dict__.items()}
+            with_drift = self.fitted_copy().__dict__
 
             def restore():
                 self.__dict__.clear()
@@ -2172,6 +2169,17 @@ class SelfSensingEstimator:
         })
 
     # ------------------------------------------------------------------ serialisation
+    #: attributes a :meth:`fitted_copy` shares with the original: what the caller gave, not what the fit made
+    SHARED_INPUTS = ("rig", "config", "members", "leakage_search_reuse")
+
+    def fitted_copy(self) -> "SelfSensingEstimator":
+        """A copy of the fitted state (every fitted attribute copied deeply) that shares :attr:`SHARED_INPUTS` with
+        this estimator: a snapshot to restore (:meth:`fit_coefficients`' offset-drift re-decision) or to continue
+        from (the gap diagnostic's recalibrations that share one H(q) calibration)."""
+        import copy
+
+        return copy.deepcopy(self, {id(v): v for k, v in self.__dict__.items() if k in self.SHARED_INPUTS})
+
     def to_dict(self) -> dict:
         return {
             "config": dataclasses.asdict(self.config),
