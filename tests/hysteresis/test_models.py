@@ -203,6 +203,52 @@ def test_selection_in_worker_threads_is_bit_identical_and_keeps_the_table_order(
     assert json.dumps(par.model.to_dict()) == json.dumps(serial.model.to_dict())
 
 
+
+def test_folds_of_a_selected_non_convex_fit_in_workers_give_the_serial_bits():
+    """With workers, each fold of a candidate fitted fold by fold (Duhem) is a unit of work of its own: the selected
+    Duhem model -- whose final fit also starts from its fold fits -- and the table are the bits of the serial
+    selection."""
+    from selfsense.hysteresis.models.select import cv_workers
+
+    q1, q2 = _drive(seed=6), _drive(seed=7)
+    u = lambda q: q / QREF
+    y = [40 * u(q) + 5 * play_operator(u(q), [0.15])[:, 0] for q in (q1, q2)]
+    cands = (("linear", {}), ("duhem", {"degree": 2, "ridge": 1e-7}))
+    serial = select_h_model([q1, q2], y, DT, candidates=cands)
+    assert serial.model.kind == "duhem"
+    with cv_workers(2):
+        par = select_h_model([q1, q2], y, DT, candidates=cands)
+    assert json.dumps(par.table) == json.dumps(serial.table)
+    assert json.dumps(par.model.to_dict()) == json.dumps(serial.model.to_dict())
+
+
+def test_a_fold_that_raises_in_a_worker_fails_its_candidate_as_in_the_serial_loop(monkeypatch):
+    """A fold fitted in a worker of its own that raises: the candidate's row is the serial row (every fold NaN, the
+    status naming the error), and the selection goes on without it."""
+    from selfsense.hysteresis.models.duhem import DuhemH
+    from selfsense.hysteresis.models.select import cv_workers
+
+    fit = DuhemH.fit
+
+    def fails_on_the_last_block(self, q, v, dt, extra=None, row_mask=None, **kw):
+        if row_mask is not None and not np.concatenate([np.atleast_1d(m) for m in row_mask])[-1]:
+            raise ValueError("no fit on this fold")
+        return fit(self, q, v, dt, extra=extra, row_mask=row_mask, **kw)
+
+    monkeypatch.setattr(DuhemH, "fit", fails_on_the_last_block)
+    q1, q2 = _drive(seed=6), _drive(seed=7)
+    u = lambda q: q / QREF
+    y = [40 * u(q) + 5 * play_operator(u(q), [0.15])[:, 0] for q in (q1, q2)]
+    cands = (("linear", {}), ("pi", {"n_play": 6, "ridge": 1e-8}), ("duhem", {"degree": 2, "ridge": 1e-7}))
+    serial = select_h_model([q1, q2], y, DT, candidates=cands)
+    with cv_workers(2):
+        par = select_h_model([q1, q2], y, DT, candidates=cands)
+    duhem = next(r for r in par.table if r["kind"] == "duhem")
+    assert duhem["status"] == "failed: ValueError: no fit on this fold"
+    assert all(np.isnan(r) for r in duhem["cv_rms_v"])
+    assert json.dumps(par.table, default=str) == json.dumps(serial.table, default=str)
+    assert par.model.kind == serial.model.kind == "pi"
+
 def test_job_log_reaches_the_worker_threads_of_a_job(tmp_path):
     """Output of the threads a job starts with a copy of its context (the selection's workers) goes to the job's
     log, not to the Snakemake process's terminal."""

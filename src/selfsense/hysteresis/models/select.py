@@ -80,19 +80,20 @@ KEEP_ROWS_BYTES = 128 << 20
 
 
 def _cost_rank(kind: str, params=None) -> tuple:
-    """Order in which parallel workers take the candidates, the longest first (longest-processing-time order), so
-    that no worker is left with a long one at the end: the non-convex searches, then the Preisach grids from the
-    finest (their cost grows with the grid's cells, n_grid^2), the QP of the modified PI (its worker also imports
-    the QP solver, about as long as its fit) between the finest grids and the others, then the rest in the given
-    order. Measured blocked CVs on tweezer_sim, one worker: duhem 2.4 and 2.3 s, preisach n_grid 24 1.8 s, modified
-    PI 0.7 s (+ 0.9 s solver import), n_grid 16 0.7 s, n_grid 12 0.45 and 0.34 s, the others 0.02-0.12 s. Only the
-    order of work changes, never the table's."""
-    if kind == "duhem":
-        return (0, 0)
+    """Order in which parallel workers take the units of work (:func:`select_h_model`), the longest first
+    (longest-processing-time order), so that no worker is left with a long one at the end: the finest Preisach grids
+    (their cost grows with the grid's cells, n_grid^2), the QP of the modified PI (its worker also imports the QP
+    solver, about as long as its fit), the folds of the non-convex searches (each fold a unit of its own), the other
+    Preisach grids from the finest, then the rest in the given order. Measured blocked CVs on tweezer_sim, one
+    worker: preisach n_grid 24 1.5 s, modified PI 0.9 s (+ 1.3 s solver import), duhem 2.7 and 3.1 s in five folds,
+    n_grid 16 0.5 s, n_grid 12 0.45 and 0.3 s, the others 0.03-0.2 s. Only the order of work changes, never the
+    table's."""
     if kind == "preisach":
         cells = int((params or {}).get("n_grid", 0)) ** 2
-        return (1, -cells) if cells >= 400 else (3, -cells)
+        return (0, -cells) if cells >= 400 else (3, -cells)
     if kind == "modified_pi":
+        return (1, 0)
+    if kind == "duhem":
         return (2, 0)
     return (4, 0)
 
@@ -298,22 +299,25 @@ def _se_beyond(rms: list, alt) -> bool:
 
 
 def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, starts_out: list | None = None,
-               bound: float | None = None):
+               bound: float | None = None, only: int | None = None):
     """CV of a model that is not linear in its parameters but fits extra columns jointly and accepts a row mask
     (``duhem``): fitted on the training rows of every segment (its state runs over every sample), scored on every
     ``thin``-th held-out row. ``starts_out``: a list that receives each fold fit's parameters (``coef_``), the
     extra starting points of the final fit on all rows (:func:`_final_fit`). ``bound``: stop once the folds done
-    can no longer give a mean below it (:func:`_beyond`)."""
+    can no longer give a mean below it (:func:`_beyond`). ``only``: fit and score fold ``only`` alone (a list of one
+    RMS): each fold's fit starts afresh from the rows (nothing of an earlier fold is read), so the folds of one
+    candidate can be fitted in separate workers and give the bits of the loop over all of them."""
     lengths = [len(q) for q in qs]
     folds = blocked_folds(lengths, n_blocks, rotate=rotate)
     y = np.concatenate(ys)
     keep = np.zeros(len(y), bool)
     keep[::thin] = True
     rms = []
-    for held in folds:
+    for f, held in enumerate(folds):
+        if only is not None and f != only:
+            continue
         # the model thins its own objective rows (contiguous rows keep its equation-error increments); the holds
         # of the other folds join its fit, those of this fold are scored
-        f = len(rms)
         kw = {"holds": holds.subset(lambda h: h % len(folds) != f)} if holds else {}
         model.fit(qs, ys, dt, extra=extras, row_mask=split_rows(~held, lengths), **kw)
         if starts_out is not None and getattr(model, "coef_", None) is not None:
@@ -322,8 +326,7 @@ def _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin, holds=None, st
         if extras is not None and len(model.extra_coef_):
             pred = pred + _stack_extra(extras, lengths) @ model.extra_coef_
         ev = held & keep
-        rms.append(_fold_rms(model, (pred - y)[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds),
-                             len(rms)))
+        rms.append(_fold_rms(model, (pred - y)[ev], holds, dt, len(y) // max(fit_stride(lengths), 1), len(folds), f))
         if _beyond(rms, len(folds), bound):
             break
     return rms
@@ -360,13 +363,60 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
             status = PRUNED_SE_STATUS if se else PRUNED_STATUS if len(rms) else PRUNED_BLOCKS_STATUS
             rms = list(rms) + [float("nan")] * (n_blocks - len(rms))
     except Exception as exc:  # a candidate that cannot be fitted is out of the race, and says why
-        rms, status = [float("nan")] * n_blocks, f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+        rms, status = [float("nan")] * n_blocks, _failed(exc)
+    return _table_row(model, kind, params, rms, status)
+
+
+def _failed(exc: BaseException) -> str:
+    """The status of a candidate whose fit raised ``exc``."""
+    return f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+
+
+def _table_row(model, kind: str, params, rms, status: str) -> dict:
+    """A row of the selection table from the fold errors ``rms`` and the fit's ``status``; a fit that returned NaN /
+    inf on some folds is out of the race too."""
     bad = [i + 1 for i, r in enumerate(rms) if not np.isfinite(r)]
-    if status == "ok" and bad:  # a fit that returned NaN / inf on some folds is out of the race too
+    if status == "ok" and bad:
         status = f"failed: non-finite held-out error on fold(s) {bad}"
     return {"kind": kind, "params": dict(params), "label": model.label(), "cv_rms_v": [float(r) for r in rms],
             "cv_rms_mean_v": float(np.mean(rms)) if np.all(np.isfinite(rms)) else float("nan"),
             "status": status, "selected": False}
+
+
+def _fitted_fold_by_fold(model) -> bool:
+    """Whether :func:`cv_candidate` cross-validates ``model`` by the masked joint fit (:func:`_cv_masked`: not linear
+    in its parameters, extra columns fitted jointly), whose folds :func:`cv_fold` can fit one at a time."""
+    return (not (isinstance(model, LinearParamH) or getattr(model, "linear_in_parameters", False))
+            and bool(getattr(model, "joint_extra", False)))
+
+
+def cv_fold(model, qs, ys, dt: float, extras, n_blocks: int, rotate: bool, thin: int, holds, fold: int):
+    """Fold ``fold`` alone of the blocked CV that :func:`cv_candidate` makes of a model fitted fold by fold
+    (:func:`_fitted_fold_by_fold`, no ``bound``): ``(its held-out RMS, its fit's parameters as starting points (a
+    list), None)``, or ``(None, [], the failed status)`` where its fit raises. :func:`merge_folds` makes the
+    candidate's row of them."""
+    starts: list = []
+    k = fit_stride([len(q) for q in qs])
+    try:
+        rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds,
+                         starts_out=starts if _takes_fold_starts(model) else None, only=fold)
+    except Exception as exc:
+        return None, [], _failed(exc)
+    return rms[0], starts, None
+
+
+def merge_folds(model, kind: str, params, parts: list, n_blocks: int) -> dict:
+    """The row of :func:`cv_candidate` (no ``bound``) from the results of :func:`cv_fold` for every fold, in fold
+    order: the same fold errors and status (the first fold that raised decides it, as the loop over the folds stops
+    there), and the fold fits' parameters as ``_starts`` (popped by :func:`select_h_model`)."""
+    err = next((e for _, _, e in parts if e is not None), None)
+    if err is not None:
+        return _table_row(model, kind, params, [float("nan")] * n_blocks, err)
+    row = _table_row(model, kind, params, [r for r, _, _ in parts], "ok")
+    starts = [c for _, st, _ in parts for c in st]
+    if starts:
+        row["_starts"] = starts
+    return row
 
 
 #: status of a candidate whose blocked CV was stopped (``select_h_model(..., prune=True)``): it could not be selected
@@ -473,11 +523,30 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     if workers > 1:
         from selfsense.parallel import fork_map
 
-        order = sorted(range(len(candidates)), key=lambda i: _cost_rank(*candidates[i]))
-        rows = fork_map(row, [candidates[i] for i in order], workers, threads_fallback=True)
-        table = [None] * len(candidates)
-        for i, r in zip(order, rows):
-            table[i] = r
+        # units of work: a candidate, or one fold of a candidate fitted fold by fold (the non-convex searches, the
+        # longest candidates: as whole candidates two of them kept both workers busy while the rest waited; their
+        # folds are independent fits, cv_fold); the longest first
+        units = []
+        for i in sorted(range(len(candidates)), key=lambda i: _cost_rank(*candidates[i])):
+            split = _fitted_fold_by_fold(make_model(candidates[i][0], **candidates[i][1]))
+            units += [(i, f) for f in range(n_blocks)] if split else [(i, None)]
+
+        def unit(u):
+            i, f = u
+            if f is None:
+                return row(candidates[i])
+            kind, params = candidates[i]
+            return cv_fold(make_model(kind, **params), qs, ys, dt, extras, n_blocks, rotate, thin, holds, f)
+
+        table, parts = [None] * len(candidates), {}
+        for (i, f), got in zip(units, fork_map(unit, units, workers, threads_fallback=True)):
+            if f is None:
+                table[i] = got
+            else:
+                parts.setdefault(i, []).append(got)
+        for i, got in parts.items():
+            kind, params = candidates[i]
+            table[i] = merge_folds(make_model(kind, **params), kind, params, got, n_blocks)
     else:
         # one after the other, here: the stacked rows of the best candidate so far are kept (at most one matrix
         # of at most KEEP_ROWS_BYTES), and if it is selected its final fit solves them as they are instead of
