@@ -55,3 +55,12 @@ def test_rooms_depend_only_on_rooms_below_them():
 
 def test_the_truth_simulator_never_imports_the_estimator_or_the_diagnostic():
     assert not (_edges()["sim"] & {"sensing", "gap", "chain", "stages"}), _edges()["sim"]
+
+
+#: the diagnostic's package stays under this many lines (src/selfsense/gap/*.py, counted as ``wc -l`` counts them)
+GAP_MAX_LINES = 3000
+
+
+def test_the_gap_package_stays_under_its_line_limit():
+    n = sum(f.read_bytes().count(b"\n") for f in (ROOT / "gap").glob("*.py"))
+    assert n < GAP_MAX_LINES, f"src/selfsense/gap/*.py has {n} lines; the limit is {GAP_MAX_LINES} (under it)"

@@ -9,5 +9,5 @@ Modules:
 * :mod:`~selfsense.gap.blind`, :mod:`~selfsense.gap.blindsim`: the blind check on the device families;
 * :mod:`~selfsense.gap.protocol`: the excitation check and the protocol proposal;
 * :mod:`~selfsense.gap.standin`: the load stage's fixed-form force estimate;
-* :mod:`~selfsense.gap.stats`: block bootstrap and Shapley values.
+* :mod:`~selfsense.gap.stats`: exact Shapley values.
 """

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from selfsense.chain.amplifier import _runs
+
 from .signals import active, dt_of
 
 __all__ = ["excitation_check", "proposal", "ELEMENTS"]
@@ -22,12 +24,6 @@ ELEMENTS = {
                        "effects from the hysteresis state)",
     "rest_then_repeat": "the same drive repeated in a later trial (temperature and campaign-time drift)",
 }
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    d = np.diff(m.astype(int))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
 def _holds(V: np.ndarray, t: np.ndarray, act: np.ndarray, Vm: float) -> list[tuple[int, int, float]]:

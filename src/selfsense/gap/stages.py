@@ -47,7 +47,7 @@ import numpy as np
 import pandas as pd
 from selfsense.signals.iir import lfilter
 
-from selfsense.signals.kernels import shunt_current, trapezoid_increment
+from selfsense.signals.kernels import shunt_current
 
 __all__ = ["StageSignals", "stage_signals", "prepare_signals", "MEMBERS", "STAGES", "diagnose_stages",
            "stage_residuals", "GramCV"]
@@ -157,11 +157,6 @@ def _plays(x: np.ndarray, radii, z0=None) -> np.ndarray:
     from selfsense.hysteresis.operators import play_operator
 
     return play_operator(np.asarray(x, float), np.asarray(radii, float), z0)
-
-
-def _cumint(x: np.ndarray, dt: float) -> np.ndarray:
-    """``int_0^t x dtau``, the trapezoidal rule of the charge integral (thesis eq. 57, ``selfsense.sensing.core``)."""
-    return np.concatenate([[0.0], np.cumsum(trapezoid_increment(x[:-1], x[1:], dt))])
 
 
 # --------------------------------------------------------------------------------------------------- members
