@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from selfsense.determinism import STAGE_RMS_RTOL
 from selfsense.gap import blind
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,7 +57,8 @@ def _margin(rec) -> float:
 
 def test_committed_cases_rerun_on_this_machine(records):
     """Four committed cases with clear decisions (every member at least 20 % away from its threshold, one per
-    family) rerun here: the same effects named, stage residuals within 1e-6 relative."""
+    family) rerun here: the same effects named, stage residuals within STAGE_RMS_RTOL (the case's DAQ log simulated
+    again on this machine may sit one ADC code away on a few samples)."""
     picked = {}
     for r in records[:200]:
         if r["family"] not in picked and r["manifest"]["effects"] and _margin(r) > 0.2:
@@ -68,7 +70,8 @@ def test_committed_cases_rerun_on_this_machine(records):
         assert [e["effect"] for e in new["prediction"]["effects"]] == [e["effect"] for e in r["prediction"]["effects"]]
         for st, d in r["prediction"]["stages"].items():
             if d.get("observed"):
-                assert new["prediction"]["stages"][st]["rms_nominal"] == pytest.approx(d["rms_nominal"], rel=1e-6)
+                assert new["prediction"]["stages"][st]["rms_nominal"] == pytest.approx(d["rms_nominal"],
+                                                                                       rel=STAGE_RMS_RTOL), (r["case"], st)
 
 
 def test_fast_tier_meets_floors_from_the_campaign():
