@@ -88,6 +88,7 @@ DATES = {
     "stage_chain_selection_leak": "2026-12-02",
     "stage_chain_selection_leak_fresh500": "2026-12-02",
     "stage_chain_fold_starts": "2026-12-02",
+    "stage_chain_current_seeds0_5": "2026-12-04",
     "stage_chain_before_fold_starts_fresh700": "2026-12-02",
     "stage_chain_fold_starts_fresh700": "2026-12-02",
     "whole_device_holds_g": "2026-11-27",
@@ -230,6 +231,8 @@ COMMANDS = {
                                            "--out benchmarks/stage_chain/selection_leak_fresh500",
     "stage_chain_fold_starts": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
                                "--out benchmarks/stage_chain/fold_starts",
+    "stage_chain_current_seeds0_5": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 "
+                                    "--out benchmarks/stage_chain/current_seeds0_5",
     "stage_chain_before_fold_starts_fresh700": "python benchmarks/stage_chain.py devices --seeds 700-702 --hold-s 0 "
                                                "--out benchmarks/stage_chain/before_fold_starts_fresh700 (the code "
                                                "of commit e0d11bc)",
@@ -634,7 +637,9 @@ def stage_chain_figures() -> list[Fig]:
                ("benchmarks/stage_chain/selection_leak/records.jsonl", ", leakage decided again by the H(q) selection "
                 "(before the fold starts of the non-convex final fit)", "stage_chain_selection_leak"),
                ("benchmarks/stage_chain/fold_starts/records.jsonl", ", the non-convex final fit also started from its "
-                "fold fits (current code)", "stage_chain_fold_starts")]
+                "fold fits (2026-12-02)", "stage_chain_fold_starts"),
+               ("benchmarks/stage_chain/current_seeds0_5/records.jsonl", ", the same seeds scored again on 2026-12-04 "
+                "(current code)", "stage_chain_current_seeds0_5")]
     # fresh seeds: the code before the fold majority, then the current code (seeds 400-405: its first contact)
     fresh = [("benchmarks/stage_chain/thesis_relay_bound_fresh/records.jsonl", ", first contact on fresh seeds "
               "300-305 (simulator relay fix, holds' bound)", "stage_chain_relay_bound_fresh"),
