@@ -86,9 +86,12 @@ def run_device(family: str, preset: str, seed: int, hold_s: float, members: dict
             "tip_creep": bool((est.tip_creep_ or {}).get("applied", False)),
             "tip_creep_cv_ratio": (float(est.tip_creep_["cv_rms_m_with"] / est.tip_creep_["cv_rms_m_without"])
                                    if "cv_rms_m_with" in (est.tip_creep_ or {}) else None),
-            # the offset drift decided again beside the creep member (dropped: H(q) fitted again without it)
+            # the offset drift decided again beside the creep member (dropped: H(q) fitted again without it), with the
+            # displacement (m) and force (N) rows' blocked-CV errors with and without it
             "offset_drift_beside_creep": ({k: est.tip_creep_["offset_drift_check"][k]
-                                           for k in ("offset_drift_kept", "h_refitted_without_offset_drift")
+                                           for k in ("offset_drift_kept", "h_refitted_without_offset_drift",
+                                                     "cv_rms_m_with_offset_drift", "cv_rms_m_without_offset_drift",
+                                                     "cv_rms_n_with_offset_drift", "cv_rms_n_without_offset_drift")
                                            if k in est.tip_creep_["offset_drift_check"]}
                                           if "offset_drift_check" in (est.tip_creep_ or {}) else None),
             "h_selected": str(est.fit_report_["hysteresis"].get("selected", "")),
