@@ -400,7 +400,7 @@ def cv_fold(model, qs, ys, dt: float, extras, n_blocks: int, rotate: bool, thin:
     try:
         rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds,
                          starts_out=starts if _takes_fold_starts(model) else None, only=fold)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 -- a fold that cannot be fitted fails its candidate, as in cv_candidate
         return None, [], _failed(exc)
     return rms[0], starts, None
 
