@@ -349,7 +349,7 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
         if isinstance(model, LinearParamH) or getattr(model, "linear_in_parameters", False):
             rms = _cv_linear(model, qs, ys, dt, extras, folds, thin, holds, rows_out=rows_out,
                              bound=bound[0] if isinstance(bound, tuple) else bound)
-        elif getattr(model, "joint_extra", False):
+        elif _fitted_fold_by_fold(model):
             rms = _cv_masked(model, qs, ys, dt, extras, n_blocks, rotate, thin * k, holds,
                              starts_out=starts_out if _takes_fold_starts(model) else None, bound=bound)
         elif k == 1:
