@@ -180,13 +180,12 @@ def test_stream_arbitrary_blocks_and_steps_equal_one_block(fitted):
              for a, b in ((0, 70), (70, 150), (150, 151), (151, 997), (997, len(raw)))]
     for j in range(2):
         np.testing.assert_array_equal(np.concatenate([p[j] for p in split]), whole[j])
-    # per-sample step == block: the same per-sample source compiled into two kernels; LLVM may vectorise the
-    # operator sums differently in each (reassociation), so agreement is to rounding, not bit-exact
+    # per-sample step == block: a sample goes through the kernels of a block, bit for bit
     s.reset()
     steps = np.array([s.step(u, v, r, t=tk) for tk, u, v, r in
                       raw[["t", "u_cmd", "v_shunt", "relay"]].itertuples(index=False)])
-    _assert_close(steps[:, 0], whole[0], "step dx_hat")
-    _assert_close(steps[:, 1], whole[1], "step f_hat")
+    np.testing.assert_array_equal(steps[:, 0], whole[0])
+    np.testing.assert_array_equal(steps[:, 1], whole[1])
     assert s.n_samples == len(raw)
     assert s.offset_v == pytest.approx(np.mean(raw["v_shunt"][:150] / RIG["inamp_gain"]), rel=1e-12)
 
@@ -529,6 +528,48 @@ def test_stream_equals_batch_every_kind(fitted_kinds, data, name):
         steps = np.array([s.step(*[c[i] for c in cols[:3]], t=cols[3][i]) for i in range(k)])
         np.testing.assert_array_equal(steps[:, 0], out["dx_hat"][:k])
         np.testing.assert_array_equal(steps[:, 1], out["f_hat"][:k])
+
+
+def _step(s, cols, k, relay=None, t_of=None):
+    """``s.step`` on sample k of cols = (u_cmd, v_shunt, relay, t or None), with another relay value or the time of
+    sample ``t_of``."""
+    u, v, r, t = cols
+    return s.step(u[k], v[k], r[k] if relay is None else relay, None if t is None else t[k if t_of is None else t_of])
+
+
+@pytest.mark.parametrize("name", [*CASES, "GaugedH"])
+def test_step_is_the_block_path_every_kind(fitted_kinds, data, name):
+    """step() gives the bits of process() on the whole trial for every kind, with time stamps and on the
+    constructor's dt, across a get_state / set_state detour, after rejected samples and interleaved with a block."""
+    ests, _ = fitted_kinds
+    d, _ = data
+    raw = _raw(d, "obj_val")
+    u, v, r, t = (raw[c].to_numpy() for c in ("u_cmd", "v_shunt", "relay", "t"))
+    n = len(raw)
+    for kw, tt in (({}, t), ({"dt": float(np.median(np.diff(t)))}, None)):
+        cols = (u, v, r, tt)
+        s = SelfSensingStream(ests[name], **kw)
+        whole = s.process(u, v, r, tt)
+        s.reset()
+        out = [_step(s, cols, k) for k in range(500)]
+        saved = s.get_state()
+        for k in range(500, 520):
+            _step(s, cols, k)
+        s.set_state(saved)
+        out += [_step(s, cols, k) for k in range(500, 700)]
+        with pytest.raises(StreamError):
+            _step(s, cols, 700, relay=0.5)
+        if tt is not None:
+            with pytest.raises(StreamError):
+                _step(s, cols, 700, t_of=699)
+        out += [_step(s, cols, k) for k in range(700, 1000)]
+        out += list(zip(*s.process(u[1000:1200], v[1000:1200], r[1000:1200], None if tt is None else tt[1000:1200])))
+        out += [_step(s, cols, k) for k in range(1200, n)]
+        out = np.array(out)
+        assert s.n_samples == n
+        assert np.ptp(whole[0]) > 0 and np.ptp(whole[1]) > 0
+        np.testing.assert_array_equal(out[:, 0], whole[0], err_msg=f"{name} {kw}: dx_hat")
+        np.testing.assert_array_equal(out[:, 1], whole[1], err_msg=f"{name} {kw}: f_hat")
 
 
 @pytest.mark.parametrize("name", ["preisach", "duhem", "RICreepH", "GaugedH"])

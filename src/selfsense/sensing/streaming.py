@@ -56,6 +56,7 @@ from typing import Any, Mapping
 import numpy as np
 from numba import njit
 
+from selfsense.hysteresis import _kernels
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
 __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "stream_kinds"]
@@ -76,6 +77,14 @@ _CR_Y = _NS_BACK
  _B_LIMIT, _B_KSH, _B_KSQ, _B_AH, _B_AQ, _B_KRG, _B_KCR, _B_NCR) = range(20)
 # the creep member's tables follow the fixed back parameters: a = exp(-dt / tau) per lag, then beta (2 per lag)
 _NP_BACK = 20
+# ---- one-sample buffers of step(): rows of an (_NB_STEP, 1) array, each row a one-sample block for the kernels
+_B_U, _B_V, _B_R, _B_T, _B_Q, _B_VV, _B_QM, _B_TS, _B_VH, _B_DX, _B_F = range(11)
+_NB_STEP = 11
+# ---- Kuhnen's operator in its gauge (link 2): offset, s0, sign, c, then the edges of the kernel's parameter arrays
+# r_H, w_H, rC, wC, gC, rSp, wSp, rSn, wSn (as indices into the same array), then those arrays
+_H_OFFSET, _H_S0, _H_SIGN, _H_C = range(4)
+_H_EDGES = 4
+_NH_ARRAYS = 9
 
 # status codes returned by the kernels
 _OK = 0
@@ -255,11 +264,70 @@ def back_kernel(P, S, u, relay, q, V, VH, dx_out, f_out, aux):
     return _OK
 
 
+@njit(cache=True)
+def _step_front(P, S, S_next, B, u, v, relay, tk, dt, use_t):
+    """Link 1 on one sample: :func:`front_kernel` on the one-sample rows of ``B`` (``_B_*``) and on ``S_next``, a copy
+    of the front state ``S`` (left as it was: the caller commits ``S_next`` once the sample is through). Returns the
+    kernel's status."""
+    B[_B_U, 0] = u
+    B[_B_V, 0] = v
+    B[_B_R, 0] = relay
+    B[_B_T, 0] = tk
+    for i in range(S.shape[0]):
+        S_next[i] = S[i]
+    st, _k = front_kernel(P, S_next, B[_B_T], B[_B_U], B[_B_V], B[_B_R], dt, use_t, B[_B_Q], B[_B_VV], B[_B_QM],
+                          B[_B_TS])
+    return st
+
+
+@njit(cache=True)
+def _step_back(P, S, B, VH, aux):
+    """Link 3 on one sample: :func:`back_kernel` on the rows of ``B`` filled by :func:`_step_front`, H in ``VH``.
+    Returns (dx_hat, f_hat)."""
+    back_kernel(P, S, B[_B_U], B[_B_R], B[_B_Q], B[_B_VV], VH, B[_B_DX], B[_B_F], aux)
+    return B[_B_DX, 0], B[_B_F, 0]
+
+
+@njit(cache=True)
+def _h_array(PH, i):
+    """The i-th parameter array of ``_kernels.gamma_kernel`` held in ``PH`` (a contiguous view)."""
+    return PH[int(PH[_H_EDGES + i]):int(PH[_H_EDGES + i + 1])]
+
+
+@njit(cache=True)
+def _gauged_pi(Q, PH, p, c, xl, out):
+    """Link 2 for Kuhnen's operator ``G`` (eq. 42) in the gauge ``H = sign * (G[Q] - c Q)`` (the registry
+    ``modified_pi``, the thesis ``GaugedH``) on a block: ``_kernels.gamma_kernel``, the kernel of ``ModifiedPI.apply``,
+    on the state arrays ``p``, ``c``, ``xl`` (updated in place), then the gauge. ``PH`` holds the operator's
+    parameters (``_H_*``)."""
+    _kernels.gamma_kernel(Q, _h_array(PH, 0), _h_array(PH, 1), p, _h_array(PH, 2), _h_array(PH, 3), _h_array(PH, 4),
+                          c, xl, PH[_H_OFFSET], PH[_H_S0], _h_array(PH, 5), _h_array(PH, 6), _h_array(PH, 7),
+                          _h_array(PH, 8), out)
+    sign = PH[_H_SIGN]
+    cg = PH[_H_C]
+    for k in range(Q.shape[0]):
+        out[k] = sign * (out[k] - cg * Q[k])
+
+
+@njit(cache=True)
+def _step_gauged_pi(PF, SF, SF_next, PB, SB, B, aux, u, v, relay, tk, dt, use_t, PH, p, c, xl):
+    """One sample through the three links for Kuhnen's operator in its gauge, in one compiled call:
+    :func:`_step_front`, :func:`_gauged_pi`, :func:`_step_back` -- the kernels of the block path, so that a sample
+    gives the bits of the same sample in a block. Returns (status, dx_hat, f_hat); the front state ``SF`` takes the
+    sample only if its status is OK."""
+    st = _step_front(PF, SF, SF_next, B, u, v, relay, tk, dt, use_t)
+    if st != _OK:
+        return st, 0.0, 0.0
+    _gauged_pi(B[_B_Q], PH, p, c, xl, B[_B_VH])
+    dx, f = _step_back(PB, SB, B, B[_B_VH], aux)
+    for i in range(SF.shape[0]):
+        SF[i] = SF_next[i]
+    return _OK, dx, f
+
+
 def _creep_advance(Q, r_K, a_K, dt, state):
     """Kuhnen's creep operators (eq. 39, ``operators.creep_operator``) continued from ``state`` = {"c": (n, m)
     states at the last sample, "x": last input or None}; returns (N, n, m) like ``creep_operator``."""
-    from selfsense.hysteresis import _kernels
-
     g = -np.expm1(-np.asarray(a_K, float) * dt)
     c = state["c"]
     if state["x"] is None:
@@ -316,14 +384,19 @@ class HStream:
         elif not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"HStream: sample time dt must be > 0 s, got {self.dt!r}")
         # Kuhnen's operator (registry modified_pi, thesis GaugedH): the hysteresis kernel called on state arrays held
-        # here (ModifiedPI.apply's own state objects cost more than the operator on a one-sample block)
+        # here (ModifiedPI.apply's own state objects cost more than the operator on a one-sample block), with its
+        # parameters and the gauge in one array (_H_*: one argument of a compiled call instead of thirteen)
         self._op = None
         if self.kind == "modified_pi" or (self.kind == "GaugedH" and type(self._inner).__name__ == "ModifiedPI"):
             op = model.inner_ if self.kind == "modified_pi" else self._inner
             if self.kind == "modified_pi" and np.isfinite(self.dt) and self.dt != op.dt:
                 op = op.with_dt(self.dt)
             self._op = op
-            self._sign, self._c = ((model.sign_, model.c_) if self.kind == "modified_pi" else (model.sign, model.c))
+            sign, c = ((model.sign_, model.c_) if self.kind == "modified_pi" else (model.sign, model.c))
+            s0, rSp, wSp, rSn, wSn = op._sup
+            arrays = (op.r_H, op.w_H, op._rC, op._wC, op._gC, rSp, wSp, rSn, wSn)
+            edges = _H_EDGES + _NH_ARRAYS + 1 + np.cumsum([0, *(len(a) for a in arrays)])
+            self._PH = np.concatenate([[float(op.offset), float(s0), float(sign), float(c)], edges, *arrays])
         self.reset()
 
     def reset(self) -> None:
@@ -333,6 +406,7 @@ class HStream:
             op = self._op
             self._state = {"p": op.z_H0.copy(), "c": np.ascontiguousarray(op.Z_K0.reshape(-1)).copy(),
                            "xl": np.array([np.nan])}
+            self._bind_op_state()
         elif self.kind in ("GaugedH", "RIModel"):
             self._state = {"op": None}
         elif self.kind == "RICreepH":
@@ -345,19 +419,22 @@ class HStream:
 
     def set_state(self, state) -> None:
         self._state = copy.deepcopy(state)
+        if self._op is not None:
+            self._bind_op_state()
+
+    def _bind_op_state(self) -> None:
+        """Kuhnen's operator: ``_op_args`` = (parameters, the state arrays p, c, xl), the arguments of
+        :func:`_gauged_pi` after the input, bound again whenever the state dict is replaced (reset, set_state)."""
+        st = self._state
+        self._op_args = (self._PH, st["p"], st["c"], st["xl"])
 
     def process(self, Q) -> np.ndarray:
         Q = np.ascontiguousarray(Q, dtype=float)
         m, st = self.model, self._state
-        if self._op is not None:   # = ModifiedPI.apply on the held state (same kernel, same bits)
-            from selfsense.hysteresis import _kernels
-
-            op = self._op
+        if self._op is not None:   # = ModifiedPI.apply on the held state (same kernel, same bits), then the gauge
             y = np.empty(Q.shape[0])
-            s0, rSp, wSp, rSn, wSn = op._sup
-            _kernels.gamma_kernel(Q, op.r_H, op.w_H, st["p"], op._rC, op._wC, op._gC, st["c"], st["xl"], op.offset, s0,
-                                  rSp, wSp, rSn, wSn, y)
-            return self._sign * (y - self._c * Q)
+            _gauged_pi(Q, *self._op_args, y)
+            return y
         if self.kind == "GaugedH":
             if type(self._inner).__name__ == "RIModel":
                 g, st["op"] = self._inner.apply(np.maximum(Q, 0.0), st["op"])
@@ -607,8 +684,10 @@ class SelfSensingStream:
             kappa_cr, float(len(a_cr)), *a_cr, *beta_cr], dtype=float)
         self._SB0 = np.zeros(_NS_BACK + 2 * len(a_cr))
         self.drift = (CausalOffsetDrift(estimator, self.dt) if getattr(estimator, "offset_drift_", False) else None)
-        self._buf = {k: np.zeros(1) for k in ("u", "v", "r", "t", "q", "V", "qm", "ts", "dx", "f")}
-        self._buf["aux"] = np.empty((0, 4))
+        # step(): one-sample buffers and a second front state, allocated once
+        self._B = np.zeros((_NB_STEP, 1))
+        self._aux0 = np.empty((0, 4))
+        self._SF_next = np.zeros(_NS_FRONT)
         self._SF0 = np.zeros(_NS_FRONT)
         if not isinstance(offset, str):
             self._SF0[_OFF_MODE] = _OFF_FIXED
@@ -692,28 +771,33 @@ class SelfSensingStream:
     def step(self, u_cmd: float, v_shunt: float, relay: float = 0.0, t: float | None = None):
         """One raw sample: control voltage u_cmd [V], in-amp output v_shunt [V], relay 0/1, time t [s]
         (or the constructor's dt). Returns (dx_hat [m], f_hat [N])."""
-        if t is None and self.dt is None:
-            raise ValueError("step: pass t or construct the stream with dt")
+        if t is None:
+            if self.dt is None:
+                raise ValueError("step: pass t or construct the stream with dt")
+            tk, dt, use_t = 0.0, self.dt, False
+        else:
+            tk, dt, use_t = float(t), 0.0, True
         if self.drift is not None:
             dx, f = self.process(np.array([float(u_cmd)]), np.array([float(v_shunt)]), np.array([float(relay)]),
-                                 None if t is None else np.array([float(t)]))
+                                 None if t is None else np.array([tk]))
             return float(dx[0]), float(f[0])
-        # the block path for one sample, on buffers allocated once (the same kernels and the same H stream)
-        b = self._buf
-        b["u"][0], b["v"][0], b["r"][0] = u_cmd, v_shunt, relay
-        if t is None:
-            use_t, dt = False, self.dt
-        else:
-            b["t"][0] = t
-            use_t, dt = True, 0.0
-        SF = self._SF.copy()
-        st, k = front_kernel(self._PF, SF, b["t"], b["u"], b["v"], b["r"], dt, use_t, b["q"], b["V"], b["qm"], b["ts"])
+        # the block path for one sample (the same kernels and the same H stream) on buffers allocated once; the front
+        # state takes the sample once the whole sample is through, as a block's
+        h = self.h
+        if h._op is not None:
+            st, dx, f = _step_gauged_pi(self._PF, self._SF, self._SF_next, self._PB, self._SB, self._B, self._aux0,
+                                        float(u_cmd), float(v_shunt), float(relay), tk, dt, use_t, *h._op_args)
+            if st:
+                self._raise(st, f"sample {self.n_samples}")
+            return dx, f
+        st = _step_front(self._PF, self._SF, self._SF_next, self._B, float(u_cmd), float(v_shunt), float(relay), tk,
+                         dt, use_t)
         if st:
-            self._raise(int(st), f"sample {self.n_samples}")
-        VH = self.h.process(b["q"])
-        back_kernel(self._PB, self._SB, b["u"], b["r"], b["q"], b["V"], VH, b["dx"], b["f"], b["aux"])
-        self._SF = SF
-        return float(b["dx"][0]), float(b["f"][0])
+            self._raise(st, f"sample {self.n_samples}")
+        VH = h.process(self._B[_B_Q])
+        dx, f = _step_back(self._PB, self._SB, self._B, VH, self._aux0)
+        self._SF, self._SF_next = self._SF_next, self._SF
+        return dx, f
 
     def process(self, u_cmd, v_shunt, relay=None, t=None, *, full: bool = False):
         """A block of raw samples (1-D arrays of equal length; relay default 0). Returns (dx_hat, f_hat) arrays,
