@@ -31,7 +31,7 @@ import pandas as pd
 
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
-from selfsense.sensing.estimator import _rig_get
+from selfsense.io.rig import rig_value
 
 __all__ = ["H_PARAMS", "fit_standin_h", "FastSensingEstimator", "rig_params"]
 
@@ -39,8 +39,8 @@ __all__ = ["H_PARAMS", "fit_standin_h", "FastSensingEstimator", "rig_params"]
 def rig_params(rig: Any) -> dict[str, float]:
     """n_A, C_p (one actuator), amplifier gain and shunt resistance from a ``selfsense.io.Rig`` or a rig.yaml
     mapping (read as the estimator reads the rig)."""
-    return {"n_A": _rig_get(rig, "n_actuators"), "C_p": _rig_get(rig, "actuator_catalog", "capacitance_f"),
-            "gain": _rig_get(rig, "amplifier_gain"), "R": _rig_get(rig, "shunt_resistance_ohm")}
+    return {"n_A": rig_value(rig, "n_actuators"), "C_p": rig_value(rig, "actuator_catalog", "capacitance_f"),
+            "gain": rig_value(rig, "amplifier_gain"), "R": rig_value(rig, "shunt_resistance_ohm")}
 
 
 #: the stand-in's H(q): the registry's Preisach form at the settings the pipeline selects on the bundled dataset

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from selfsense.hysteresis.models import LinearParamH, ridge_lstsq
+from selfsense.io.rig import rig_value
 from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
@@ -166,22 +167,15 @@ class SensingConfig:
         return cls(**cfg)
 
 
-def _rig_get(rig: Any, *path: str) -> float:
-    obj = rig
-    for p in path:
-        obj = obj[p] if isinstance(obj, Mapping) else getattr(obj, p)
-    return float(obj)
-
-
 def _rig_params(rig: Any) -> dict[str, float]:
     """The rig quantities the estimator needs, from a ``selfsense.io.Rig`` or a plain rig.yaml mapping."""
     return {
-        "n_A": _rig_get(rig, "n_actuators"),
-        "C_p": _rig_get(rig, "actuator_catalog", "capacitance_f"),
-        "blocked_force": _rig_get(rig, "actuator_catalog", "blocked_force_n"),
-        "max_voltage": _rig_get(rig, "actuator_catalog", "max_voltage_v"),
-        "dx_pzt_free": _rig_get(rig, "actuator_catalog", "free_displacement_m"),
-        "dx_tip_free": _rig_get(rig, "tip_free_displacement_m"),
+        "n_A": rig_value(rig, "n_actuators"),
+        "C_p": rig_value(rig, "actuator_catalog", "capacitance_f"),
+        "blocked_force": rig_value(rig, "actuator_catalog", "blocked_force_n"),
+        "max_voltage": rig_value(rig, "actuator_catalog", "max_voltage_v"),
+        "dx_pzt_free": rig_value(rig, "actuator_catalog", "free_displacement_m"),
+        "dx_tip_free": rig_value(rig, "tip_free_displacement_m"),
     }
 
 
@@ -1496,7 +1490,7 @@ class SelfSensingEstimator:
             self.amplifier_["note"] = "no V_s / u_cmd columns: V as given"
             return trials
         try:
-            R, gain = _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain")
+            R, gain = rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain")
         except (KeyError, AttributeError, TypeError):
             self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
             return trials
@@ -1517,7 +1511,7 @@ class SelfSensingEstimator:
         term in q is a gauge of H and does not change the rebuild (V - H is interpolated linearly in q)."""
         from selfsense.chain.amplifier import limited_mask
 
-        R = _rig_get(self.rig, "shunt_resistance_ohm")
+        R = rig_value(self.rig, "shunt_resistance_ohm")
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
         cal = meta[meta["role"] == "calibration"]
         seen = {t: _with_column(trials[t], "V", np.where(limited_mask(trials[t], R, lim.i_lim, lim.band), np.nan,
@@ -1666,7 +1660,7 @@ class SelfSensingEstimator:
                                                                 "lag", "supported", "note")})
         H0 = self.voltage_hysteresis_
         h_of = None if H0 is None else (lambda d: _eval_h(H0, d["q"].to_numpy(dtype=float), _trial_dt(d)))
-        V = rebuild_voltage(df, _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain"),
+        V = rebuild_voltage(df, rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain"),
                             lim, h_of)
         return _with_column(df, "V", V)
 
@@ -1677,7 +1671,7 @@ class SelfSensingEstimator:
             return np.ones(len(df), bool)
         from selfsense.chain.amplifier import limited_mask
 
-        return ~limited_mask(df, _rig_get(self.rig, "shunt_resistance_ohm"), self.amplifier_["i_lim"],
+        return ~limited_mask(df, rig_value(self.rig, "shunt_resistance_ohm"), self.amplifier_["i_lim"],
                              self.amplifier_["band"])
 
     def _h(self, Q: np.ndarray, df: pd.DataFrame) -> np.ndarray:
@@ -1992,7 +1986,7 @@ class SelfSensingEstimator:
         """The rig's shunt resistance [ohm], or None where the rig gives none (the charge resolution is then not
         assessed)."""
         try:
-            return _rig_get(self.rig, "shunt_resistance_ohm")
+            return rig_value(self.rig, "shunt_resistance_ohm")
         except (KeyError, AttributeError, TypeError):
             return None
 
@@ -2155,9 +2149,9 @@ class SelfSensingEstimator:
         cfg = self.config
         u = df["u_cmd"].to_numpy()
         if cfg.dc_offset:
-            dx = sliding_dc_offset(dx, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+            dx = sliding_dc_offset(dx, u, zero_level=cfg.zero_input_v / max(rig_value(self.rig, "amplifier_gain"), 1e-12))
         if cfg.dc_offset_force:
-            f = sliding_dc_offset(f, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+            f = sliding_dc_offset(f, u, zero_level=cfg.zero_input_v / max(rig_value(self.rig, "amplifier_gain"), 1e-12))
         if cfg.limit:
             dx = limit_to_range(dx, *self.ranges_["dx"])
             f = limit_to_range(f, *self.ranges_["f"])
