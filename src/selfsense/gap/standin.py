@@ -29,9 +29,10 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
+from selfsense.io.rig import rig_value
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
-from selfsense.io.rig import rig_value
+from selfsense.sensing.estimator import scaled_lstsq
 
 __all__ = ["H_PARAMS", "fit_standin_h", "FastSensingEstimator", "rig_params"]
 
@@ -59,11 +60,8 @@ def fit_standin_h(Q: np.ndarray, y: np.ndarray, dt: float):
 
 
 def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Column-scaled least squares."""
-    s = np.sqrt(np.mean(X**2, axis=0))
-    s[s == 0] = 1.0
-    c, *_ = np.linalg.lstsq(X / s, y, rcond=1e-10)
-    return c / s
+    """The estimator's column-scaled least squares, singular values below 1e-10 of the largest cut."""
+    return scaled_lstsq(X, y, rcond=1e-10)
 
 
 @dataclass

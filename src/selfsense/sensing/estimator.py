@@ -284,12 +284,14 @@ def _eval_h(model, Q: np.ndarray, dt: float | None = None) -> np.ndarray:
     return np.asarray(model(Q), dtype=float)
 
 
-def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Least squares on column-scaled regressors (charges ~1e-4 C and voltages ~1e2 V differ by 1e6)."""
+def scaled_lstsq(X: np.ndarray, y: np.ndarray, rcond: float | None = None) -> np.ndarray:
+    """Least squares on column-scaled regressors (charges ~1e-4 C and voltages ~1e2 V differ by 1e6): each column
+    divided by its RMS (a zero column left as it is), ``numpy.linalg.lstsq`` with ``rcond``, the scale undone."""
     scale = np.sqrt(np.mean(X**2, axis=0))
     scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=None)
+    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=rcond)
     return coef / scale
+
 
 
 def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:
@@ -533,7 +535,7 @@ def _blocked_cv_rms(A: np.ndarray, y: np.ndarray, held: list) -> float:
     :func:`selfsense.hysteresis.models.select.blocked_folds`) is predicted from the rows outside it. The score with
     which the chain's members of the sensing regression are adopted (rest offset, creep bank, offset drift beside
     it)."""
-    err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
+    err = np.concatenate([A[h] @ scaled_lstsq(A[~h], y[~h]) - y[h] for h in held])
     return float(np.sqrt(np.mean(err ** 2)))
 
 
@@ -1781,7 +1783,7 @@ class SelfSensingEstimator:
             self.tip_creep_["offset_drift_check"] = check
         Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, _ = rows
         dx0 = 0.0
-        cd = _lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
+        cd = scaled_lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
         if creep_on:
             beta, cd = cd[base.shape[1]:], cd[:base.shape[1]]
             self.tip_creep_["beta"] = [float(b) for b in beta]
@@ -1799,7 +1801,7 @@ class SelfSensingEstimator:
         self.fit_report_["regression_form"] = regression
         if regression == "approx":
             # f = (A3 / n_A) (Q - n_A C_p V_p)   (eq. 52): one physical coefficient A3
-            cf = _lstsq(Zf, yf)
+            cf = scaled_lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)
             B21, B22 = force_coefficients(A3, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22}
@@ -1815,7 +1817,7 @@ class SelfSensingEstimator:
             B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
         else:
-            cf = _lstsq(Xf if sf is None else np.column_stack([Xf, sf]), yf)
+            cf = scaled_lstsq(Xf if sf is None else np.column_stack([Xf, sf]), yf)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
                           "A3": float(cf[0] * n_A)}
         self.coef_["dx0"] = dx0
@@ -1889,7 +1891,7 @@ class SelfSensingEstimator:
         rows): the force side of the offset-drift re-decision beside the creep member (:meth:`fit_coefficients`)."""
         A = rows.Xf
         if creep_on:
-            beta = _lstsq(np.column_stack([rows.base, rows.Kd]), rows.yd)[rows.base.shape[1]:]
+            beta = scaled_lstsq(np.column_stack([rows.base, rows.Kd]), rows.yd)[rows.base.shape[1]:]
             A = np.column_stack([rows.Xf, rows.Kf @ beta])
         return _blocked_cv_rms(A, rows.yf, self._row_folds(rows.lengths_f))
 
