@@ -38,9 +38,10 @@ def _case(i: int, seed: int) -> dict:
     from selfsense.gap.blindsim import simulate_family_case
     from selfsense.gap.counterfactual import _summary, tip_table
     from selfsense.hysteresis.models import make_model
-    from selfsense.sensing.estimator import (SelfSensingEstimator, SensingConfig, _rig_get, _rig_params,
+    from selfsense.sensing.estimator import (SelfSensingEstimator, SensingConfig, _rig_params,
                                              _with_column)
     from selfsense.chain.amplifier import limited_mask
+    from selfsense.io.rig import rig_value
 
     c = draw_tip_case(i, seed)
     if "rate.amplifier" not in c["effects"]:
@@ -59,7 +60,7 @@ def _case(i: int, seed: int) -> dict:
     for label, (kind, params) in REFERENCES.items():
         class Ref(SelfSensingEstimator):
             def _anchor_h(self, trials, meta, lim, kind=kind, params=params):
-                R = _rig_get(self.rig, "shunt_resistance_ohm")
+                R = rig_value(self.rig, "shunt_resistance_ohm")
                 meta = meta.set_index("trial") if "trial" in meta.columns else meta
                 cal = meta[meta["role"] == "calibration"]
                 seen = {t: _with_column(trials[t], "V", np.where(limited_mask(trials[t], R, lim.i_lim, lim.band), np.nan,
@@ -86,7 +87,7 @@ def _case(i: int, seed: int) -> dict:
                                                                     "lag", "supported", "note")})
             q = df["q"].to_numpy()
             t = next(k for k, d in tr.items() if len(d) == len(df) and np.array_equal(d["q"].to_numpy(), q))
-            V = rebuild_voltage(df, _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain"),
+            V = rebuild_voltage(df, rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain"),
                                 lim, lambda d: true_vh[t][:len(d)])
             return _with_column(df, "V", V)
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import re
 import statistics
 import sys
@@ -56,6 +55,7 @@ DATES = {
     "stage_chain_tip_creep_off_fresh800": "2026-12-03",
     "stage_chain_tip_creep_fresh800": "2026-12-03",
     "stage_chain_drift_refit_fresh806": "2026-12-03",
+    "stage_chain_current_fresh900": "2026-12-04",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -245,6 +245,8 @@ COMMANDS = {
                                       "--out benchmarks/stage_chain/tip_creep_fresh800",
     "stage_chain_drift_refit_fresh806": "python benchmarks/stage_chain.py devices --seeds 806-809 --hold-s 0 "
                                         "--out benchmarks/stage_chain/drift_refit_fresh806",
+    "stage_chain_current_fresh900": "python benchmarks/stage_chain.py devices --seeds 900-905 --hold-s 0 "
+                                    "--out benchmarks/stage_chain/current_fresh900",
     "creep_chain_first_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
                                   "--jobs 2 --out benchmarks/gap_tip/creep_chain_first_20261211.md",
     "creep_chain_held_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
@@ -677,7 +679,9 @@ def stage_chain_figures() -> list[Fig]:
               "(its first contact)", "stage_chain_tip_creep_fresh800"),
              ("benchmarks/stage_chain/drift_refit_fresh806/records.jsonl", ", fresh seeds 806-809, the offset drift "
               "beside the creep member decided against the chain calibrated without it (its first contact; current "
-              "code)", "stage_chain_drift_refit_fresh806")]
+              "code)", "stage_chain_drift_refit_fresh806"),
+             ("benchmarks/stage_chain/current_fresh900/records.jsonl", ", fresh seeds 900-905, the code of "
+              "2026-12-04 (its first contact)", "stage_chain_current_fresh900")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -706,7 +710,7 @@ def stage_chain_figures() -> list[Fig]:
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
                "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500",
-               "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806"}
+               "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806", "stage_chain_current_fresh900"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)

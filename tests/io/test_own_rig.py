@@ -123,3 +123,20 @@ def test_drive_in_rig_yaml_file(tmp_path):
     with pytest.raises(ContractError):
         (d / "rig.yaml").write_text(yaml.safe_dump(_rig(drive={"u_cmd_min_v": 20})))
         load_rig(d)
+
+
+def test_rig_value_reads_the_same_number_from_a_rig_and_from_its_yaml_mapping():
+    from pathlib import Path
+
+    from selfsense.io.rig import rig_value
+
+    path = Path(__file__).resolve().parents[2] / "data" / "raw" / "sample" / "rig.yaml"
+    raw = yaml.safe_load(path.read_text())
+    rig = load_rig(path.parent)
+    for keys in (("shunt_resistance_ohm",), ("amplifier_gain",), ("actuator_catalog", "capacitance_f")):
+        expect = raw
+        for k in keys:
+            expect = expect[k]
+        assert rig_value(rig, *keys) == rig_value(raw, *keys) == float(expect)
+    with pytest.raises((KeyError, AttributeError)):
+        rig_value(raw, "no_such_key")

@@ -37,6 +37,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
+from selfsense.signals.runs import true_runs
+
 __all__ = ["AmplifierLimit", "shunt_current", "identify_current_limit", "limited_mask", "rebuild_voltage",
            "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN"]
 
@@ -76,12 +78,6 @@ def shunt_current(df: pd.DataFrame, shunt_resistance_ohm: float) -> np.ndarray:
     return (df["V_s"].to_numpy(dtype=float) - off) / float(shunt_resistance_ohm)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    m = np.concatenate([[0], mask.astype(np.int8), [0]])
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
-
-
 def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_ohm: float,
                            amplifier_gain: float) -> AmplifierLimit:
     """The amplifier's current limit from the shunt current of every trial (V_s and the relay only).
@@ -119,7 +115,8 @@ def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_
         t = df["t"].to_numpy(dtype=float)
         dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
         m = limited_mask(df, shunt_resistance_ohm, i_lim, band)
-        runs_s += [(b - a_) * dt for a_, b in _runs(m)]
+        starts, ends = true_runs(m)
+        runs_s += ((ends - starts) * dt).tolist()
         if "u_cmd" not in df or not m.any():
             continue
         V = df["V"].to_numpy(dtype=float)

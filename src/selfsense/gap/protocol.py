@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from selfsense.chain.amplifier import _runs
+from selfsense.signals.runs import true_runs
 
 from .signals import active, dt_of
 
@@ -34,7 +34,8 @@ def _holds(V: np.ndarray, t: np.ndarray, act: np.ndarray, Vm: float) -> list[tup
     lvl = np.convolve(V, k, mode="same")
     flat = act & (np.abs(V - lvl) < 0.01 * Vm) & (np.abs(np.gradient(lvl, dt)) < 0.05 * Vm)
     out = []
-    for a, b in _runs(flat):
+    starts, ends = true_runs(flat)
+    for a, b in zip(starts.tolist(), ends.tolist()):
         if (b - a) * dt >= 0.8:
             out.append((a, b, float(np.median(V[a:b]))))
     return out

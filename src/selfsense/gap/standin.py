@@ -29,9 +29,10 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
+from selfsense.io.rig import rig_value
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
-from selfsense.sensing.estimator import _rig_get
+from selfsense.sensing.estimator import scaled_lstsq
 
 __all__ = ["H_PARAMS", "fit_standin_h", "FastSensingEstimator", "rig_params"]
 
@@ -39,8 +40,8 @@ __all__ = ["H_PARAMS", "fit_standin_h", "FastSensingEstimator", "rig_params"]
 def rig_params(rig: Any) -> dict[str, float]:
     """n_A, C_p (one actuator), amplifier gain and shunt resistance from a ``selfsense.io.Rig`` or a rig.yaml
     mapping (read as the estimator reads the rig)."""
-    return {"n_A": _rig_get(rig, "n_actuators"), "C_p": _rig_get(rig, "actuator_catalog", "capacitance_f"),
-            "gain": _rig_get(rig, "amplifier_gain"), "R": _rig_get(rig, "shunt_resistance_ohm")}
+    return {"n_A": rig_value(rig, "n_actuators"), "C_p": rig_value(rig, "actuator_catalog", "capacitance_f"),
+            "gain": rig_value(rig, "amplifier_gain"), "R": rig_value(rig, "shunt_resistance_ohm")}
 
 
 #: the stand-in's H(q): the registry's Preisach form at the settings the pipeline selects on the bundled dataset
@@ -59,11 +60,8 @@ def fit_standin_h(Q: np.ndarray, y: np.ndarray, dt: float):
 
 
 def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Column-scaled least squares."""
-    s = np.sqrt(np.mean(X**2, axis=0))
-    s[s == 0] = 1.0
-    c, *_ = np.linalg.lstsq(X / s, y, rcond=1e-10)
-    return c / s
+    """The estimator's column-scaled least squares, singular values below 1e-10 of the largest cut."""
+    return scaled_lstsq(X, y, rcond=1e-10)
 
 
 @dataclass

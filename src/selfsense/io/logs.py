@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from selfsense.signals.runs import true_runs
+
 from .errors import ContractError, Problem
 from .rig import CANONICAL_COLUMNS, Rig
 from .trials import column_problems
@@ -162,9 +164,7 @@ def _bad_cells(name: str, raw: pd.DataFrame, cols: list[str]) -> tuple[pd.DataFr
 def _runs_max(mask: np.ndarray) -> int:
     if not mask.any():
         return 0
-    m = np.concatenate(([0], mask.view(np.int8) if mask.dtype == bool else mask.astype(np.int8), [0]))
-    d = np.diff(m)
-    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    starts, ends = true_runs(mask)
     return int((ends - starts).max())
 
 

@@ -33,6 +33,8 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
+from selfsense.signals.runs import true_runs
+
 from .errors import Problem
 
 __all__ = ["DEFAULTS", "DOCS", "check_plausibility", "check_plausibility_keys"]
@@ -119,12 +121,6 @@ def _robust_range(x: np.ndarray) -> float:
     return float(hi - lo)
 
 
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    m = np.concatenate(([0], mask.astype(np.int8), [0]))
-    d = np.diff(m)
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-
-
 def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float]) -> tuple[int, float, int] | None:
     """(1-based first row, value, count) of a clipped extreme of ``x``, or None.
 
@@ -191,7 +187,7 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
         err("relay", first, f"relay = 0 (actuator connected) for at least {100 * lim['min_released_fraction']:g} % "
             "of the trial (rig.yaml plausibility.min_released_fraction)",
             f"{100 * frac:.3g} % (released from row {first})")
-    starts, ends = _runs(relay == 1)
+    starts, ends = true_runs(relay == 1)
     first_rel = int(np.flatnonzero(released)[0])
     later = [(s, e) for s, e in zip(starts, ends) if s > first_rel]
     if later:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import yaml
@@ -36,13 +37,22 @@ import yaml
 from .errors import ContractError, Problem
 from .yamlsafe import NoAliasLoader
 
-__all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "parse_rig",
+__all__ = ["Rig", "Reference", "ActuatorCatalog", "ChannelMap", "load_rig", "parse_rig", "rig_value",
            "CANONICAL_COLUMNS", "RIG_FILE"]
 
 RIG_FILE = "rig.yaml"
 #: raw DAQ channels of a trial log, in canonical order (docs/data_format.md)
 CANONICAL_COLUMNS: tuple[str, ...] = ("t", "u_cmd", "v_shunt", "laser", "load_cell", "relay")
 FORMATS = ("auto", "csv", "parquet", "tdms", "mat")
+
+
+def rig_value(rig: Any, *path: str) -> float:
+    """One number of a rig, from a :class:`Rig` or a plain rig.yaml mapping: ``rig_value(rig, "actuator_catalog",
+    "capacitance_f")`` reads ``rig.actuator_catalog.capacitance_f`` or ``rig["actuator_catalog"]["capacitance_f"]``."""
+    obj = rig
+    for p in path:
+        obj = obj[p] if isinstance(obj, Mapping) else getattr(obj, p)
+    return float(obj)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import pandas as pd
 
 from .units import SIGNALS, coef_unit
 
-__all__ = ["EXPORT_COLUMNS", "export_trial", "trial_frame", "main"]
+__all__ = ["EXPORT_COLUMNS", "export_trial", "trial_frame"]
 
 EXPORT_COLUMNS = ("t", "u_cmd", "relay", "V", "q", "V_H", "V_p", "dx_raw", "f_raw", "dx_hat", "f_hat", "dx_ref",
                   "f_ref")

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from selfsense.hysteresis.models import LinearParamH, ridge_lstsq
+from selfsense.io.rig import rig_value
 from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
                                     tip_force)
@@ -166,22 +167,15 @@ class SensingConfig:
         return cls(**cfg)
 
 
-def _rig_get(rig: Any, *path: str) -> float:
-    obj = rig
-    for p in path:
-        obj = obj[p] if isinstance(obj, Mapping) else getattr(obj, p)
-    return float(obj)
-
-
 def _rig_params(rig: Any) -> dict[str, float]:
     """The rig quantities the estimator needs, from a ``selfsense.io.Rig`` or a plain rig.yaml mapping."""
     return {
-        "n_A": _rig_get(rig, "n_actuators"),
-        "C_p": _rig_get(rig, "actuator_catalog", "capacitance_f"),
-        "blocked_force": _rig_get(rig, "actuator_catalog", "blocked_force_n"),
-        "max_voltage": _rig_get(rig, "actuator_catalog", "max_voltage_v"),
-        "dx_pzt_free": _rig_get(rig, "actuator_catalog", "free_displacement_m"),
-        "dx_tip_free": _rig_get(rig, "tip_free_displacement_m"),
+        "n_A": rig_value(rig, "n_actuators"),
+        "C_p": rig_value(rig, "actuator_catalog", "capacitance_f"),
+        "blocked_force": rig_value(rig, "actuator_catalog", "blocked_force_n"),
+        "max_voltage": rig_value(rig, "actuator_catalog", "max_voltage_v"),
+        "dx_pzt_free": rig_value(rig, "actuator_catalog", "free_displacement_m"),
+        "dx_tip_free": rig_value(rig, "tip_free_displacement_m"),
     }
 
 
@@ -290,12 +284,14 @@ def _eval_h(model, Q: np.ndarray, dt: float | None = None) -> np.ndarray:
     return np.asarray(model(Q), dtype=float)
 
 
-def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Least squares on column-scaled regressors (charges ~1e-4 C and voltages ~1e2 V differ by 1e6)."""
+def scaled_lstsq(X: np.ndarray, y: np.ndarray, rcond: float | None = None) -> np.ndarray:
+    """Least squares on column-scaled regressors (charges ~1e-4 C and voltages ~1e2 V differ by 1e6): each column
+    divided by its RMS (a zero column left as it is), ``numpy.linalg.lstsq`` with ``rcond``, the scale undone."""
     scale = np.sqrt(np.mean(X**2, axis=0))
     scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=None)
+    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=rcond)
     return coef / scale
+
 
 
 def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:
@@ -539,7 +535,7 @@ def _blocked_cv_rms(A: np.ndarray, y: np.ndarray, held: list) -> float:
     :func:`selfsense.hysteresis.models.select.blocked_folds`) is predicted from the rows outside it. The score with
     which the chain's members of the sensing regression are adopted (rest offset, creep bank, offset drift beside
     it)."""
-    err = np.concatenate([A[h] @ _lstsq(A[~h], y[~h]) - y[h] for h in held])
+    err = np.concatenate([A[h] @ scaled_lstsq(A[~h], y[~h]) - y[h] for h in held])
     return float(np.sqrt(np.mean(err ** 2)))
 
 
@@ -1496,7 +1492,7 @@ class SelfSensingEstimator:
             self.amplifier_["note"] = "no V_s / u_cmd columns: V as given"
             return trials
         try:
-            R, gain = _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain")
+            R, gain = rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain")
         except (KeyError, AttributeError, TypeError):
             self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
             return trials
@@ -1517,7 +1513,7 @@ class SelfSensingEstimator:
         term in q is a gauge of H and does not change the rebuild (V - H is interpolated linearly in q)."""
         from selfsense.chain.amplifier import limited_mask
 
-        R = _rig_get(self.rig, "shunt_resistance_ohm")
+        R = rig_value(self.rig, "shunt_resistance_ohm")
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
         cal = meta[meta["role"] == "calibration"]
         seen = {t: _with_column(trials[t], "V", np.where(limited_mask(trials[t], R, lim.i_lim, lim.band), np.nan,
@@ -1666,7 +1662,7 @@ class SelfSensingEstimator:
                                                                 "lag", "supported", "note")})
         H0 = self.voltage_hysteresis_
         h_of = None if H0 is None else (lambda d: _eval_h(H0, d["q"].to_numpy(dtype=float), _trial_dt(d)))
-        V = rebuild_voltage(df, _rig_get(self.rig, "shunt_resistance_ohm"), _rig_get(self.rig, "amplifier_gain"),
+        V = rebuild_voltage(df, rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain"),
                             lim, h_of)
         return _with_column(df, "V", V)
 
@@ -1677,7 +1673,7 @@ class SelfSensingEstimator:
             return np.ones(len(df), bool)
         from selfsense.chain.amplifier import limited_mask
 
-        return ~limited_mask(df, _rig_get(self.rig, "shunt_resistance_ohm"), self.amplifier_["i_lim"],
+        return ~limited_mask(df, rig_value(self.rig, "shunt_resistance_ohm"), self.amplifier_["i_lim"],
                              self.amplifier_["band"])
 
     def _h(self, Q: np.ndarray, df: pd.DataFrame) -> np.ndarray:
@@ -1787,7 +1783,7 @@ class SelfSensingEstimator:
             self.tip_creep_["offset_drift_check"] = check
         Xd, yd, Xf, yf, lengths_d, rest_ok, rest_info, base, Kd, Kf, _ = rows
         dx0 = 0.0
-        cd = _lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
+        cd = scaled_lstsq(np.column_stack([base, Kd]) if creep_on else base, yd)
         if creep_on:
             beta, cd = cd[base.shape[1]:], cd[:base.shape[1]]
             self.tip_creep_["beta"] = [float(b) for b in beta]
@@ -1805,7 +1801,7 @@ class SelfSensingEstimator:
         self.fit_report_["regression_form"] = regression
         if regression == "approx":
             # f = (A3 / n_A) (Q - n_A C_p V_p)   (eq. 52): one physical coefficient A3
-            cf = _lstsq(Zf, yf)
+            cf = scaled_lstsq(Zf, yf)
             A3 = float(cf[0] * n_A)
             B21, B22 = force_coefficients(A3, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22}
@@ -1821,7 +1817,7 @@ class SelfSensingEstimator:
             B21, B22 = force_row(float(cd[0]), float(cd[1]), A3, S2, n_A, C_p)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "A3": A3, "B21": B21, "B22": B22, "S2": S2}
         else:
-            cf = _lstsq(Xf if sf is None else np.column_stack([Xf, sf]), yf)
+            cf = scaled_lstsq(Xf if sf is None else np.column_stack([Xf, sf]), yf)
             self.coef_ = {"A1": float(cd[0]), "A2": float(cd[1]), "B21": float(cf[0]), "B22": float(cf[1]),
                           "A3": float(cf[0] * n_A)}
         self.coef_["dx0"] = dx0
@@ -1895,7 +1891,7 @@ class SelfSensingEstimator:
         rows): the force side of the offset-drift re-decision beside the creep member (:meth:`fit_coefficients`)."""
         A = rows.Xf
         if creep_on:
-            beta = _lstsq(np.column_stack([rows.base, rows.Kd]), rows.yd)[rows.base.shape[1]:]
+            beta = scaled_lstsq(np.column_stack([rows.base, rows.Kd]), rows.yd)[rows.base.shape[1]:]
             A = np.column_stack([rows.Xf, rows.Kf @ beta])
         return _blocked_cv_rms(A, rows.yf, self._row_folds(rows.lengths_f))
 
@@ -1992,7 +1988,7 @@ class SelfSensingEstimator:
         """The rig's shunt resistance [ohm], or None where the rig gives none (the charge resolution is then not
         assessed)."""
         try:
-            return _rig_get(self.rig, "shunt_resistance_ohm")
+            return rig_value(self.rig, "shunt_resistance_ohm")
         except (KeyError, AttributeError, TypeError):
             return None
 
@@ -2155,9 +2151,9 @@ class SelfSensingEstimator:
         cfg = self.config
         u = df["u_cmd"].to_numpy()
         if cfg.dc_offset:
-            dx = sliding_dc_offset(dx, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+            dx = sliding_dc_offset(dx, u, zero_level=cfg.zero_input_v / max(rig_value(self.rig, "amplifier_gain"), 1e-12))
         if cfg.dc_offset_force:
-            f = sliding_dc_offset(f, u, zero_level=cfg.zero_input_v / max(_rig_get(self.rig, "amplifier_gain"), 1e-12))
+            f = sliding_dc_offset(f, u, zero_level=cfg.zero_input_v / max(rig_value(self.rig, "amplifier_gain"), 1e-12))
         if cfg.limit:
             dx = limit_to_range(dx, *self.ranges_["dx"])
             f = limit_to_range(f, *self.ranges_["f"])

@@ -491,7 +491,7 @@ static double kcreep_step(ss_state *s, double x)
 def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_label: str = "") -> tuple[str, str]:
     """(header, source) of the C99 export of the fitted estimator ``est`` at sample period ``dt`` [s]."""
     from selfsense import version
-    from selfsense.sensing.estimator import _rig_get
+    from selfsense.io.rig import rig_value
 
     if (getattr(est, "amplifier_", None) or {}).get("applied"):
         raise ExportError("the model carries the amplifier member (the actuator voltage rebuilt where the HV amplifier "
@@ -519,8 +519,8 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     (s_h, s_q), (a_h, a_q) = ((est.stress_weights(), est.stress_offsets()) if hasattr(est, "stress_weights")
                               else ((0.0, 0.0), (0.0, 0.0)))
     consts = {
-        "R_SHUNT": _rig_get(rig, "shunt_resistance_ohm"), "INAMP": _rig_get(rig, "inamp_gain"),
-        "GAIN": _rig_get(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
+        "R_SHUNT": rig_value(rig, "shunt_resistance_ohm"), "INAMP": rig_value(rig, "inamp_gain"),
+        "GAIN": rig_value(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
         "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
         "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,
@@ -528,7 +528,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         "A1": c["A1"], "A2": c["A2"], "B21": c["B21"], "B22": c["B22"], "DX0": float(c.get("dx0", 0.0)),
         "KS_H": s_h, "KS_Q": s_q, "KS_AH": a_h, "KS_AQ": a_q,
         "KS_RIDGE": est.stress_ridge() if hasattr(est, "stress_ridge") else 0.0,
-        "ZERO_LEVEL": cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
+        "ZERO_LEVEL": cfg.zero_input_v / max(rig_value(rig, "amplifier_gain"), 1e-12),
         "DX_LO": est.ranges_["dx"][0], "DX_HI": est.ranges_["dx"][1], "F_LO": est.ranges_["f"][0],
         "F_HI": est.ranges_["f"][1],
     }

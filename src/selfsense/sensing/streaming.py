@@ -611,7 +611,7 @@ class SelfSensingStream:
 
     def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay",
                  drift: str = "refuse"):
-        from selfsense.sensing.estimator import _rig_get
+        from selfsense.io.rig import rig_value
 
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
@@ -677,7 +677,7 @@ class SelfSensingStream:
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
-            cfg.zero_input_v / max(_rig_get(rig, "amplifier_gain"), 1e-12),
+            cfg.zero_input_v / max(rig_value(rig, "amplifier_gain"), 1e-12),
             estimator.ranges_["dx"][0], estimator.ranges_["dx"][1], estimator.ranges_["f"][0], estimator.ranges_["f"][1],
             float(bool(cfg.dc_offset)), float(bool(cfg.dc_offset_force)), float(bool(cfg.limit)),
             *estimator.stress_weights(), *estimator.stress_offsets(), estimator.stress_ridge(),
