@@ -57,6 +57,7 @@ import numpy as np
 from numba import njit
 
 from selfsense.hysteresis import _kernels
+from selfsense.io.rig import rig_value
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
 __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "stream_kinds"]
@@ -580,10 +581,6 @@ class CausalOffsetDrift:
         self._s[5] += 1.0
 
 
-def _rig_value(rig: Any, key: str) -> float:
-    return float(rig[key] if isinstance(rig, Mapping) else getattr(rig, key))
-
-
 class SelfSensingStream:
     """Streaming twin of ``stages.ingest`` + ``SelfSensingEstimator.estimate`` on raw DAQ samples, for every model
     the estimator can hold (see the module docstring).
@@ -611,8 +608,6 @@ class SelfSensingStream:
 
     def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay",
                  drift: str = "refuse"):
-        from selfsense.io.rig import rig_value
-
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
         if (getattr(estimator, "amplifier_", None) or {}).get("applied"):
@@ -641,8 +636,8 @@ class SelfSensingStream:
         if isinstance(offset, str) and offset != "relay":
             raise ValueError(f"offset must be 'relay' or a number [V], got {offset!r}")
         self.offset_arg = offset
-        R, inamp, gain = (_rig_value(rig, "shunt_resistance_ohm"), _rig_value(rig, "inamp_gain"),
-                          _rig_value(rig, "amplifier_gain"))
+        R, inamp, gain = (rig_value(rig, "shunt_resistance_ohm"), rig_value(rig, "inamp_gain"),
+                          rig_value(rig, "amplifier_gain"))
         if R <= 0 or inamp <= 0:
             raise ValueError("rig: shunt_resistance_ohm and inamp_gain must be > 0")
         g = float(getattr(estimator, "leakage_s_", 0.0) or 0.0)
