@@ -193,6 +193,13 @@ def main(argv=None) -> int:
     with rec_path.open("a") as fh:
         if a.cmd == "devices":
             members = json.loads(a.members)
+            # one folder holds one estimator configuration (its summary and the README's medians read every record):
+            # a run with other forced members resumes nothing here and is refused, not mixed in
+            other = sorted({json.dumps(r.get("members") or {}, sort_keys=True) for r in recs}
+                           - {json.dumps(members, sort_keys=True)})
+            if other:
+                raise SystemExit(f"{rec_path}: its records were made with --members {', '.join(other)}, not "
+                                 f"{json.dumps(members, sort_keys=True)}; write this run to another --out")
             done = {(r["family"], r["preset"], r["seed"]) for r in recs}
             for f in a.families.split(","):
                 for s in int_ranges(a.seeds):

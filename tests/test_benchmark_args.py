@@ -28,3 +28,20 @@ def test_no_benchmark_script_keeps_its_own_copy():
     copies = [p.name for p in (ROOT / "benchmarks").glob("*.py")
               if p.name != "_args.py" and 'part.partition("-")' in p.read_text()]
     assert copies == []
+
+
+def test_stage_chain_refuses_to_mix_forced_members_into_a_folder(tmp_path):
+    """A folder of stage_chain.py holds one estimator configuration (its summary and the README's medians read every
+    record): a run with other --members stops before fitting anything, naming the folder's members."""
+    import json
+    import subprocess
+    import sys
+
+    rec = {"family": "preisach", "preset": "clean", "seed": 0, "members": {"offset_drift": "on"}}
+    (tmp_path / "records.jsonl").write_text(json.dumps(rec) + "\n")
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "stage_chain.py"), "devices", "--families",
+                        "preisach", "--presets", "clean", "--seeds", "0", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0
+    assert '--members {"offset_drift": "on"}' in p.stderr and "another --out" in p.stderr
+    assert (tmp_path / "records.jsonl").read_text() == json.dumps(rec) + "\n"

@@ -540,7 +540,12 @@ def _step(s, cols, k, relay=None, t_of=None):
 @pytest.mark.parametrize("name", [*CASES, "GaugedH"])
 def test_step_is_the_block_path_every_kind(fitted_kinds, data, name):
     """step() gives the bits of process() on the whole trial for every kind, with time stamps and on the
-    constructor's dt, across a get_state / set_state detour, after rejected samples and interleaved with a block."""
+    constructor's dt, across a get_state / set_state detour, after rejected samples and interleaved with a block.
+
+    For Kuhnen's operator step() and process() run separately compiled copies of the same kernel
+    (``hysteresis._kernels.gamma_kernel``, compiled with reassociation allowed): equal bits on a given build rest on
+    the compiler optimising both copies alike, which this test checks (it fails, rather than a tolerance hiding it, if
+    a numba or LLVM version ever vectorises them differently)."""
     ests, _ = fitted_kinds
     d, _ = data
     raw = _raw(d, "obj_val")

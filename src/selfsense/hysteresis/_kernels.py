@@ -11,6 +11,10 @@ The creep update is written in the algebraically identical form
 ``c + g * (clamp(c, x - r, x + r) - c)`` with ``g = 1 - exp(-a T_s)``: ``clamp(c, x - r, x + r)`` is the
 play operator value, so the three cases of eq. (39) collapse into one branch-free line, and inside the
 dead zone the state is returned bit-exactly unchanged.
+
+Note for editing: ``selfsense.sensing.streaming`` compiles ``gamma_kernel`` into its own cached kernels (one call per
+streamed sample), and numba's on-disk cache checks only the file a kernel is defined in: after a change here, delete
+``src/selfsense/sensing/__pycache__`` (or set an empty ``NUMBA_CACHE_DIR``) so that the stream is compiled again.
 """
 
 from __future__ import annotations

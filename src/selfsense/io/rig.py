@@ -27,9 +27,9 @@ YAML aliases (``*name``) are refused (:mod:`selfsense.io.yamlsafe`).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Mapping
 from typing import Any
 
 import yaml

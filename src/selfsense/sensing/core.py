@@ -19,8 +19,9 @@ the streaming kernel inlines, and the NumPy functions below evaluate the very sa
   :func:`force_regressor` and its coefficients -> :func:`force_coefficients`.
 
 Units: SI (C, V, A, s, m, N). Note for editing: numba's on-disk cache of ``streaming.py``'s kernels does not see
-changes to the kernels here (they are inlined); the streaming tests compare both paths, and deleting
-``sensing/__pycache__`` forces a recompile.
+changes to the kernels here or in ``selfsense.hysteresis._kernels`` (they are compiled into the stream's own
+kernels; numba checks only the file a cached kernel is defined in); the streaming tests compare both paths, and
+deleting ``sensing/__pycache__`` forces a recompile.
 """
 from __future__ import annotations
 

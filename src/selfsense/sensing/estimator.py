@@ -51,6 +51,7 @@ __all__ = [
     "SelfSensingEstimator",
     "CalibrationError",
     "h_target",
+    "scaled_lstsq",
 ]
 
 H_MODES = ("thesis", "onsite")
@@ -291,7 +292,6 @@ def scaled_lstsq(X: np.ndarray, y: np.ndarray, rcond: float | None = None) -> np
     scale[scale == 0] = 1.0
     coef, *_ = np.linalg.lstsq(X / scale, y, rcond=rcond)
     return coef / scale
-
 
 
 def _decimate(df: pd.DataFrame, max_samples: int) -> pd.DataFrame:

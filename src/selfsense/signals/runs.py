@@ -9,7 +9,8 @@ __all__ = ["true_runs"]
 def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(starts, ends)`` of every run of True in the 1-D ``mask``: run k covers ``mask[starts[k]:ends[k]]``.
 
-    Both are int arrays in increasing order; empty when ``mask`` holds no True."""
+    Any nonzero value counts as True (NaN included): pass a boolean mask. Both are int arrays in increasing order;
+    empty when ``mask`` holds no True."""
     m = np.asarray(mask)
     if m.ndim != 1:
         raise ValueError(f"true_runs: expected a 1-D mask, got shape {m.shape}")
