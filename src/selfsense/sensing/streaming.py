@@ -57,6 +57,9 @@ import numpy as np
 from numba import njit
 
 from selfsense.hysteresis import _kernels
+from selfsense.hysteresis.models import DuhemH, LinearH, PlayH, PreisachH
+from selfsense.hysteresis.models._duhem import duhem_run
+from selfsense.hysteresis.models._grid import _grid, _play_output, _relax_output, relaxation_gains
 from selfsense.io.rig import rig_value
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
@@ -85,7 +88,12 @@ _NB_STEP = 11
 # r_H, w_H, rC, wC, gC, rSp, wSp, rSn, wSn (as indices into the same array), then those arrays
 _H_OFFSET, _H_S0, _H_SIGN, _H_C = range(4)
 _H_EDGES = 4
-_NH_ARRAYS = 9
+# ---- the registry's linear, pi, preisach (_FORM_BASIS) and duhem (_FORM_DUHEM) models (link 2): form, input
+# normalisation, Preisach grid size, linear term a, offset b, the Duhem map's scalars, then the edges of the parameter
+# arrays w_grid, r_play, w_play, g_creep, w_creep, c_map (as indices into the same array), then those arrays
+_R_FORM, _R_QLO, _R_QSPAN, _R_NGRID, _R_A, _R_B, _R_DEG, _R_VLO, _R_VSPAN, _R_EPS, _R_VMIN, _R_VMAX = range(12)
+_R_EDGES = 12
+_FORM_BASIS, _FORM_DUHEM = 0.0, 1.0
 
 # status codes returned by the kernels
 _OK = 0
@@ -311,6 +319,84 @@ def _gauged_pi(Q, PH, p, c, xl, out):
 
 
 @njit(cache=True)
+def _r_array(PR, i):
+    """The i-th parameter array of a registry model held in ``PR`` (a contiguous view)."""
+    return PR[int(PR[_R_EDGES + i]):int(PR[_R_EDGES + i + 1])]
+
+
+@njit(cache=True)
+def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
+    """Link 2 for the registry's ``linear``, ``pi``, ``preisach`` (``LinearParamH.predict``: ``H = basis(u) w + a u
+    + sum_j w_j (u - z_j) + b``, the relaxation bank of Kuhnen's creep operator, eqs. 38-41) and ``duhem``
+    (``DuhemH.predict``: ``H = v[u] + sum_j w_j (u - z_j) + b + a u``), ``u = (Q - q_lo) / q_span``, on a block:
+    the kernels of ``predict`` (``_grid``, ``_play_output``, ``_relax_output``, ``duhem_run``) on the state arrays
+    (updated in place: the Preisach grid's ``Ms``, ``ms``, ``gs``, ``Fc``; the plays' or the Duhem map's ``zs``; the
+    creep filters' ``zc``), then the sums of ``predict`` in its order, sample by sample. ``PR`` holds the model's
+    parameters (``_R_*``)."""
+    n = Q.shape[0]
+    q_lo = PR[_R_QLO]
+    q_span = PR[_R_QSPAN]
+    u = np.empty(n)
+    for k in range(n):
+        u[k] = (Q[k] - q_lo) / q_span
+    a = PR[_R_A]
+    if PR[_R_FORM] == _FORM_DUHEM:
+        v, _J = duhem_run(u, _r_array(PR, 5), int(PR[_R_DEG]), PR[_R_VLO], PR[_R_VSPAN], PR[_R_EPS], PR[_R_VMIN],
+                          PR[_R_VMAX], 1, False, zs)
+        for k in range(n):
+            out[k] = v[k]
+    else:
+        ng = int(PR[_R_NGRID])
+        r = _r_array(PR, 1)
+        if ng > 0:   # preisach_grid_output, plus play_output with plays
+            if gs[2] == 0.0:
+                gs[1] = 0.0
+            F = np.zeros((n, 1))
+            _grid(u, 0.0, 1.0, ng, _r_array(PR, 0), True, 1, Ms, ms, gs, Fc, F)
+            for k in range(n):
+                out[k] = F[k, 0]
+            if r.shape[0]:
+                yp = _play_output(u, r, _r_array(PR, 2), zs)
+                for k in range(n):
+                    out[k] = out[k] + yp[k]
+        elif r.shape[0]:
+            yp = _play_output(u, r, _r_array(PR, 2), zs)
+            for k in range(n):
+                out[k] = yp[k]
+        else:
+            for k in range(n):
+                out[k] = 0.0
+        for k in range(n):
+            out[k] = out[k] + a * u[k]
+    g = _r_array(PR, 3)
+    if g.shape[0]:
+        yc = _relax_output(u, g, _r_array(PR, 4), zc)
+        for k in range(n):
+            out[k] = out[k] + yc[k]
+    b = PR[_R_B]
+    if PR[_R_FORM] == _FORM_DUHEM:
+        for k in range(n):
+            out[k] = out[k] + b + a * u[k]
+    else:
+        for k in range(n):
+            out[k] = out[k] + b
+
+
+@njit(cache=True)
+def _step_registry(PF, SF, SF_next, PB, SB, B, aux, u, v, relay, tk, dt, use_t, PR, Ms, ms, gs, Fc, zs, zc):
+    """One sample through the three links for the registry models of :func:`_registry_h`, in one compiled call, as
+    :func:`_step_gauged_pi`. Returns (status, dx_hat, f_hat)."""
+    st = _step_front(PF, SF, SF_next, B, u, v, relay, tk, dt, use_t)
+    if st != _OK:
+        return st, 0.0, 0.0
+    _registry_h(B[_B_Q], PR, Ms, ms, gs, Fc, zs, zc, B[_B_VH])
+    dx, f = _step_back(PB, SB, B, B[_B_VH], aux)
+    for i in range(SF.shape[0]):
+        SF[i] = SF_next[i]
+    return _OK, dx, f
+
+
+@njit(cache=True)
 def _step_gauged_pi(PF, SF, SF_next, PB, SB, B, aux, u, v, relay, tk, dt, use_t, PH, p, c, xl):
     """One sample through the three links for Kuhnen's operator in its gauge, in one compiled call:
     :func:`_step_front`, :func:`_gauged_pi`, :func:`_step_back` -- the kernels of the block path, so that a sample
@@ -342,6 +428,51 @@ def _creep_advance(Q, r_K, a_K, dt, state):
     if len(Q):
         state["x"] = float(Q[-1])
     return out
+
+
+def _pack(scalars, arrays) -> np.ndarray:
+    """``scalars``, the edges of ``arrays`` in the result (indices), then ``arrays``: the parameters of a compiled
+    link-2 function in one array (``_H_*``, ``_R_*``)."""
+    edges = len(scalars) + len(arrays) + 1 + np.cumsum([0, *(len(a) for a in arrays)])
+    return np.concatenate([np.asarray(scalars, dtype=float), edges, *(np.asarray(a, dtype=float) for a in arrays)])
+
+
+def _registry_params(model, dt: float) -> np.ndarray | None:
+    """The parameters of :func:`_registry_h` (``_R_*``) for a fitted registry ``linear``, ``pi``, ``preisach`` or
+    ``duhem`` model at the sample time ``dt``: the values ``predict`` uses, taken once; None for other models."""
+    cls = type(model)
+    if cls not in (LinearH, PlayH, PreisachH, DuhemH) or model.coef_ is None:
+        return None
+    none = np.zeros(0)
+    q_lo, q_span = float(model.q_lo_), float(model.q_span_)
+    if cls is DuhemH:
+        nc = len(model.creep_tau_s)
+        lin = model.lin_coef_
+        if lin.size <= nc:
+            return None
+        a = lin[nc + 1] if lin.size > nc + 1 else 0.0
+        vmin, vmax = model._v_bounds()
+        return _pack([_FORM_DUHEM, q_lo, q_span, 0.0, a, lin[nc], model.degree, model.v_lo_, model.v_span_, model.eps,
+                      vmin, vmax],
+                     [none, none, none, relaxation_gains(dt, model.creep_tau_s) if nc else none, lin[:nc],
+                      np.ascontiguousarray(model.coef_, dtype=float)])
+    c = model.coef_
+    taus = list(model.creep_tau_s) if model.creep and model.creep_tau_s else []
+    nb = len(c) - 2 - len(taus)
+    ng = model.n_grid if cls is PreisachH else 0
+    nw = ng * (ng + 1) // 2
+    r = model._play_thresholds() if cls is not LinearH else none
+    if nb != nw + len(r):
+        return None
+    return _pack([_FORM_BASIS, q_lo, q_span, ng, c[nb], c[-1], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                 [c[:nw], r, c[nw:nb], relaxation_gains(dt, taus) if taus else none, c[nb + 1:nb + 1 + len(taus)],
+                  none])
+
+
+def _float_vector(x, n: int | None = None) -> bool:
+    """Whether ``x`` is a C-contiguous float64 vector (of ``n`` elements)."""
+    return (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 1 and x.flags.c_contiguous
+            and (n is None or x.shape[0] == n))
 
 
 def stream_kinds() -> tuple[str, ...]:
@@ -395,9 +526,11 @@ class HStream:
             self._op = op
             sign, c = ((model.sign_, model.c_) if self.kind == "modified_pi" else (model.sign, model.c))
             s0, rSp, wSp, rSn, wSn = op._sup
-            arrays = (op.r_H, op.w_H, op._rC, op._wC, op._gC, rSp, wSp, rSn, wSn)
-            edges = _H_EDGES + _NH_ARRAYS + 1 + np.cumsum([0, *(len(a) for a in arrays)])
-            self._PH = np.concatenate([[float(op.offset), float(s0), float(sign), float(c)], edges, *arrays])
+            self._PH = _pack([float(op.offset), float(s0), float(sign), float(c)],
+                             [op.r_H, op.w_H, op._rC, op._wC, op._gC, rSp, wSp, rSn, wSn])
+        # the registry's linear, pi, preisach and duhem models: predict's kernels in one compiled function on the
+        # state arrays of the state dict, with the parameters taken once (_R_*)
+        self._PR = _registry_params(model, self.dt) if self._op is None else None
         self.reset()
 
     def reset(self) -> None:
@@ -414,6 +547,7 @@ class HStream:
             self._state = {"ri": None, "creep": {"c": np.zeros((len(m.r_K), len(m.a_K))), "x": None}}
         else:
             self._state = m.initial_state()
+        self._bind_registry_state()
 
     def get_state(self):
         return copy.deepcopy(self._state)
@@ -422,6 +556,7 @@ class HStream:
         self._state = copy.deepcopy(state)
         if self._op is not None:
             self._bind_op_state()
+        self._bind_registry_state()
 
     def _bind_op_state(self) -> None:
         """Kuhnen's operator: ``_op_args`` = (parameters, the state arrays p, c, xl), the arguments of
@@ -429,12 +564,46 @@ class HStream:
         st = self._state
         self._op_args = (self._PH, st["p"], st["c"], st["xl"])
 
+    def _bind_registry_state(self) -> None:
+        """The registry's linear, pi, preisach and duhem models: ``_reg_args`` = (parameters, the state arrays of
+        :func:`_registry_h`), bound again whenever the state dict is replaced (reset, set_state); None (``predict``
+        on the state dict) for the other models and for a state not of the form ``initial_state`` gives."""
+        self._reg_args = None
+        PR, st, m = self._PR, self._state, self.model
+        if PR is None or not isinstance(st, dict):
+            return
+        none = np.zeros(0)
+        nz = len(m.creep_tau_s) if type(m) is DuhemH else int(PR[_R_EDGES + 4] - PR[_R_EDGES + 3])
+        zc = st.get("creep")
+        if not _float_vector(zc, nz):
+            return
+        if type(m) is DuhemH:
+            if _float_vector(st.get("map"), 5):
+                self._reg_args = (PR, none, none, none, none, st["map"], zc)
+            return
+        b = st.get("basis")
+        if type(m) is LinearH:
+            if b is None:
+                self._reg_args = (PR, none, none, none, none, none, zc)
+        elif type(m) is PlayH:
+            if _float_vector(b, m.n_play):
+                self._reg_args = (PR, none, none, none, none, b, zc)
+        elif isinstance(b, dict) and isinstance(b.get("grid"), tuple) and len(b["grid"]) == 4:
+            Ms, ms, gs, Fc = b["grid"]
+            if (_float_vector(Ms) and _float_vector(ms, Ms.shape[0]) and _float_vector(gs, 5)
+                    and _float_vector(Fc, m.n_grid * (m.n_grid + 1) // 2) and _float_vector(b.get("play"), m.n_play)):
+                self._reg_args = (PR, Ms, ms, gs, Fc, b["play"], zc)
+
     def process(self, Q) -> np.ndarray:
         Q = np.ascontiguousarray(Q, dtype=float)
         m, st = self.model, self._state
         if self._op is not None:   # = ModifiedPI.apply on the held state (same kernel, same bits), then the gauge
             y = np.empty(Q.shape[0])
             _gauged_pi(Q, *self._op_args, y)
+            return y
+        if self._reg_args is not None:   # = predict on the held state (the same kernels, the same bits)
+            y = np.empty(Q.shape[0])
+            _registry_h(Q, *self._reg_args, y)
             return y
         if self.kind == "GaugedH":
             if type(self._inner).__name__ == "RIModel":
@@ -779,12 +948,8 @@ class SelfSensingStream:
         # the block path for one sample (the same kernels and the same H stream) on buffers allocated once; the front
         # state takes the sample once the whole sample is through, as a block's
         h = self.h
-        if h._op is not None:
-            st, dx, f = _step_gauged_pi(self._PF, self._SF, self._SF_next, self._PB, self._SB, self._B, self._aux0,
-                                        float(u_cmd), float(v_shunt), float(relay), tk, dt, use_t, *h._op_args)
-            if st:
-                self._raise(st, f"sample {self.n_samples}")
-            return dx, f
+        if h._op is not None or h._reg_args is not None:
+            return self._step_compiled(float(u_cmd), float(v_shunt), float(relay), tk, dt, use_t, "")
         st = _step_front(self._PF, self._SF, self._SF_next, self._B, float(u_cmd), float(v_shunt), float(relay), tk,
                          dt, use_t)
         if st:
@@ -792,6 +957,21 @@ class SelfSensingStream:
         VH = h.process(self._B[_B_Q])
         dx, f = _step_back(self._PB, self._SB, self._B, VH, self._aux0)
         self._SF, self._SF_next = self._SF_next, self._SF
+        return dx, f
+
+    def _step_compiled(self, u, v, relay, tk, dt, use_t, where):
+        """One sample through the three links in one compiled call (:func:`_step_gauged_pi` for Kuhnen's operator,
+        :func:`_step_registry` for the registry models of :func:`_registry_h`). Returns (dx_hat, f_hat); a rejected
+        sample raises :class:`StreamError` naming it ``sample <n><where>``."""
+        h = self.h
+        if h._op is not None:
+            st, dx, f = _step_gauged_pi(self._PF, self._SF, self._SF_next, self._PB, self._SB, self._B, self._aux0,
+                                        u, v, relay, tk, dt, use_t, *h._op_args)
+        else:
+            st, dx, f = _step_registry(self._PF, self._SF, self._SF_next, self._PB, self._SB, self._B, self._aux0,
+                                       u, v, relay, tk, dt, use_t, *h._reg_args)
+        if st:
+            self._raise(st, f"sample {self.n_samples}{where}")
         return dx, f
 
     def process(self, u_cmd, v_shunt, relay=None, t=None, *, full: bool = False):
@@ -814,6 +994,11 @@ class SelfSensingStream:
             if tt.shape[0] != n:
                 raise ValueError(f"t must have length {n}, got {tt.shape[0]}")
             use_t, dt = True, 0.0
+        if n == 1 and not full and self.drift is None and (self.h._op is not None or self.h._reg_args is not None):
+            # a one-sample block: the compiled step (the same kernels on the same values)
+            dx, f = self._step_compiled(float(u[0]), float(v[0]), float(r[0]), float(tt[0]) if use_t else 0.0, dt,
+                                        use_t, " (block index 0)")
+            return np.array([dx]), np.array([f])
         q = np.empty(n)
         qm = np.empty(n)
         V = np.empty(n)

@@ -489,9 +489,12 @@ class PlayH(LinearParamH):
         lo[:self.n_play] = 0.0
         return lo
 
+    def _play_thresholds(self) -> np.ndarray:
+        """The plays' thresholds ``r_i = i / n_play``."""
+        return np.arange(1, self.n_play + 1) / self.n_play
+
     def _basis(self, u, stride=1):
-        r = np.arange(1, self.n_play + 1) / self.n_play
-        return play_features(np.ascontiguousarray(u, dtype=float), r, int(stride))
+        return play_features(np.ascontiguousarray(u, dtype=float), self._play_thresholds(), int(stride))
 
     def _basis_state(self):
         return np.zeros(self.n_play)
@@ -500,8 +503,7 @@ class PlayH(LinearParamH):
         return self.n_play
 
     def _basis_dot(self, u, w, state=None):
-        r = np.arange(1, self.n_play + 1) / self.n_play
-        return play_output(u, r, w, state)
+        return play_output(u, self._play_thresholds(), w, state)
 
 
 class PreisachH(LinearParamH):
@@ -545,12 +547,16 @@ class PreisachH(LinearParamH):
         self._basis_into(u, stride, F)
         return F
 
+    def _play_thresholds(self) -> np.ndarray:
+        """The plays' thresholds ``r_i = 0.5 i / n_play`` (:meth:`_basis`)."""
+        return np.arange(1, self.n_play + 1) / self.n_play * 0.5
+
     def _basis_into(self, u, stride, out):
         u = np.ascontiguousarray(u, dtype=float)
         nc = self.n_grid * (self.n_grid + 1) // 2
         preisach_grid_features(u, 0.0, 1.0, self.n_grid, int(stride), out=out[:, :nc])
         if self.n_play:
-            r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+            r = self._play_thresholds()
             out[:, nc:] = play_features(u, r, int(stride))
 
     def _basis_rows_into(self, u, stride, rows, out):
@@ -561,7 +567,7 @@ class PreisachH(LinearParamH):
         nc = self.n_grid * (self.n_grid + 1) // 2
         preisach_grid_rows(u, 0.0, 1.0, self.n_grid, int(stride), rows, out=out[:, :nc])
         if self.n_play:
-            r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+            r = self._play_thresholds()
             out[:, nc:] = play_features(u, r, int(stride))[rows]
 
     def _basis_state(self):
@@ -576,7 +582,7 @@ class PreisachH(LinearParamH):
         nc = self.n_grid * (self.n_grid + 1) // 2
         y = preisach_grid_output(u, 0.0, 1.0, self.n_grid, w[:nc], st["grid"])
         if self.n_play:
-            r = np.arange(1, self.n_play + 1) / self.n_play * 0.5
+            r = self._play_thresholds()
             y = y + play_output(u, r, w[nc:], st["play"])
         return y
 

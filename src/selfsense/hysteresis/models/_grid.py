@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["preisach_grid_features", "preisach_grid_rows", "preisach_grid_output", "relaxation_bank", "relaxation_output", "GRID_STACK",
-           "grid_state", "play_output"]
+           "grid_state", "play_output", "relaxation_gains"]
 
 _BIG = 1e300
 #: the weighted grid output is updated by the changed cells only and summed over every cell afresh every _RESYNC
@@ -312,8 +312,13 @@ def relaxation_output(u, dt: float, tau_s, w, state=None) -> np.ndarray:
     (streaming)."""
     u = np.ascontiguousarray(u, dtype=float)
     zs = np.zeros(len(tau_s)) if state is None else state
-    g = np.array([-math.expm1(-dt / float(t)) for t in tau_s])
+    g = relaxation_gains(dt, tau_s)
     return _relax_output(u, g, np.asarray(w, dtype=float)[:len(g)], zs)
+
+
+def relaxation_gains(dt: float, tau_s) -> np.ndarray:
+    """The filters' gains ``g_j = 1 - exp(-dt / tau_j)`` of :func:`relaxation_output` at the sample time ``dt`` [s]."""
+    return np.array([-math.expm1(-dt / float(t)) for t in tau_s])
 
 
 @njit(cache=True, nogil=True)

@@ -106,9 +106,12 @@ class DuhemH:
         cols.append(u[::stride, None])
         return np.column_stack(cols)
 
+    def _v_bounds(self) -> tuple[float, float]:
+        """The map's output clip ``[v_lo - v_span, v_lo + 2 v_span]``."""
+        return self.v_lo_ - 1.0 * self.v_span_, self.v_lo_ + 2.0 * self.v_span_
+
     def _run(self, u, c, stride=1, jac=False, state=None):
-        vmin = self.v_lo_ - 1.0 * self.v_span_
-        vmax = self.v_lo_ + 2.0 * self.v_span_
+        vmin, vmax = self._v_bounds()
         return duhem_run(u, np.ascontiguousarray(c, dtype=float), self.degree, self.v_lo_, self.v_span_, self.eps,
                          vmin, vmax, int(stride), bool(jac), duhem_state() if state is None else state)
 
