@@ -82,7 +82,7 @@ _CR_Y = _NS_BACK
 # the creep member's tables follow the fixed back parameters: a = exp(-dt / tau) per lag, then beta (2 per lag)
 _NP_BACK = 20
 # ---- one-sample buffers of step(): rows of an (_NB_STEP, 1) array, each row a one-sample block for the kernels
-_B_U, _B_V, _B_R, _B_T, _B_Q, _B_VV, _B_QM, _B_TS, _B_VH, _B_DX, _B_F = range(11)
+_BUF_U, _BUF_V, _BUF_R, _BUF_T, _BUF_Q, _BUF_VV, _BUF_QM, _BUF_TS, _BUF_VH, _BUF_DX, _BUF_F = range(11)
 _NB_STEP = 11
 # ---- Kuhnen's operator in its gauge (link 2): offset, s0, sign, c, then the edges of the kernel's parameter arrays
 # r_H, w_H, rC, wC, gC, rSp, wSp, rSn, wSn (as indices into the same array), then those arrays
@@ -278,14 +278,14 @@ def _step_front(P, S, S_next, B, u, v, relay, tk, dt, use_t):
     """Link 1 on one sample: :func:`front_kernel` on the one-sample rows of ``B`` (``_B_*``) and on ``S_next``, a copy
     of the front state ``S`` (left as it was: the caller commits ``S_next`` once the sample is through). Returns the
     kernel's status."""
-    B[_B_U, 0] = u
-    B[_B_V, 0] = v
-    B[_B_R, 0] = relay
-    B[_B_T, 0] = tk
+    B[_BUF_U, 0] = u
+    B[_BUF_V, 0] = v
+    B[_BUF_R, 0] = relay
+    B[_BUF_T, 0] = tk
     for i in range(S.shape[0]):
         S_next[i] = S[i]
-    st, _k = front_kernel(P, S_next, B[_B_T], B[_B_U], B[_B_V], B[_B_R], dt, use_t, B[_B_Q], B[_B_VV], B[_B_QM],
-                          B[_B_TS])
+    st, _k = front_kernel(P, S_next, B[_BUF_T], B[_BUF_U], B[_BUF_V], B[_BUF_R], dt, use_t, B[_BUF_Q], B[_BUF_VV], B[_BUF_QM],
+                          B[_BUF_TS])
     return st
 
 
@@ -293,8 +293,8 @@ def _step_front(P, S, S_next, B, u, v, relay, tk, dt, use_t):
 def _step_back(P, S, B, VH, aux):
     """Link 3 on one sample: :func:`back_kernel` on the rows of ``B`` filled by :func:`_step_front`, H in ``VH``.
     Returns (dx_hat, f_hat)."""
-    back_kernel(P, S, B[_B_U], B[_B_R], B[_B_Q], B[_B_VV], VH, B[_B_DX], B[_B_F], aux)
-    return B[_B_DX, 0], B[_B_F, 0]
+    back_kernel(P, S, B[_BUF_U], B[_BUF_R], B[_BUF_Q], B[_BUF_VV], VH, B[_BUF_DX], B[_BUF_F], aux)
+    return B[_BUF_DX, 0], B[_BUF_F, 0]
 
 
 @njit(cache=True)
@@ -389,8 +389,8 @@ def _step_registry(PF, SF, SF_next, PB, SB, B, aux, u, v, relay, tk, dt, use_t, 
     st = _step_front(PF, SF, SF_next, B, u, v, relay, tk, dt, use_t)
     if st != _OK:
         return st, 0.0, 0.0
-    _registry_h(B[_B_Q], PR, Ms, ms, gs, Fc, zs, zc, B[_B_VH])
-    dx, f = _step_back(PB, SB, B, B[_B_VH], aux)
+    _registry_h(B[_BUF_Q], PR, Ms, ms, gs, Fc, zs, zc, B[_BUF_VH])
+    dx, f = _step_back(PB, SB, B, B[_BUF_VH], aux)
     for i in range(SF.shape[0]):
         SF[i] = SF_next[i]
     return _OK, dx, f
@@ -405,8 +405,8 @@ def _step_gauged_pi(PF, SF, SF_next, PB, SB, B, aux, u, v, relay, tk, dt, use_t,
     st = _step_front(PF, SF, SF_next, B, u, v, relay, tk, dt, use_t)
     if st != _OK:
         return st, 0.0, 0.0
-    _gauged_pi(B[_B_Q], PH, p, c, xl, B[_B_VH])
-    dx, f = _step_back(PB, SB, B, B[_B_VH], aux)
+    _gauged_pi(B[_BUF_Q], PH, p, c, xl, B[_BUF_VH])
+    dx, f = _step_back(PB, SB, B, B[_BUF_VH], aux)
     for i in range(SF.shape[0]):
         SF[i] = SF_next[i]
     return _OK, dx, f
@@ -954,7 +954,7 @@ class SelfSensingStream:
                          dt, use_t)
         if st:
             self._raise(st, f"sample {self.n_samples}")
-        VH = h.process(self._B[_B_Q])
+        VH = h.process(self._B[_BUF_Q])
         dx, f = _step_back(self._PB, self._SB, self._B, VH, self._aux0)
         self._SF, self._SF_next = self._SF_next, self._SF
         return dx, f
