@@ -63,6 +63,7 @@ DATES = {
     "gap_tip_27182": "2026-11-26",
     "gap_tip_14142": "2026-11-26",
     "gap_tip_20261202": "2026-12-02",
+    "gap_tip_20261213": "2026-12-04",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
     "gap_joint_20261204": "2026-12-02",
@@ -179,6 +180,7 @@ COMMANDS = {
     "gap_tip_14142": "selfsense gap blind --tip --n 240 --seed 14142 --jobs 2 --out benchmarks/gap_tip/seed_14142",
     # the stage diagnosis with the Preisach stand-in H (its first tip tier)
     "gap_tip_20261202": "selfsense gap blind --tip --n 80 --seed 20261202 --jobs 2 --out benchmarks/gap_tip/seed_20261202",
+    "gap_tip_20261213": "selfsense gap blind --tip --n 80 --seed 20261213 --jobs 1 --out benchmarks/gap_tip/seed_20261213",
     # the joint tip tier (cases with 2-3 effects, the all-together prediction against the twin without them)
     "gap_joint_20261203": "python benchmarks/tip_joint.py --seed 20261203 --n 40 --jobs 1 --out "
                           "benchmarks/gap_tip/joint_20261203",
@@ -726,9 +728,9 @@ def _generations(entries: list[tuple[str, str, str]], marker: str) -> list[tuple
     return [(folder, key, note if i < len(have) - 1 else "") for i, (folder, key, note) in enumerate(have)]
 
 
-#: tip tiers whose per-effect rows stay in the tables after a newer tier (the 240-case seed 14142 beside the smaller
-#: first tier of the Preisach stand-in)
-TIP_PER_EFFECT = ("gap_tip_14142",)
+#: tip tiers whose per-effect rows stay in the tables after a newer tier, with what their rows are marked by (the
+#: 240-case seed 14142 beside the smaller first tier of the Preisach stand-in; seed 20261202 beside the current code)
+TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(before 2026-12-03) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -781,7 +783,10 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_14142", "gap_tip_14142",
          "; made with the earlier stand-in H of the stage diagnosis (a PI of 8 plays), before the simulator's relay fix "
          "and the leakage changes of 2026-11-27; the seed-20261202 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261202", "gap_tip_20261202", ""),
+        ("benchmarks/gap_tip/seed_20261202", "gap_tip_20261202",
+         "; made before the wider blocked-stage form of stress-dependent hysteresis, the stress member's load ridge and "
+         "the tip's creep member (2026-12-02 and -03); the seed-20261213 rows are the current code"),
+        ("benchmarks/gap_tip/seed_20261213", "gap_tip_20261213", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
@@ -810,7 +815,7 @@ def gap_figures() -> list[Fig]:
             ok_named = r["named"] >= 0.9 * r["costly"]
             ok_how = not h["scored"] or h["median_error"] <= 0.35
             out.append(T(f"gap diagnostic, tip tier, seed {seed}, {r['effect']}: cases costing >= 3 points named "
-                         + ("(the PI stand-in) " if note else "")
+                         + (TIP_PER_EFFECT.get(key, "") if note else "")
                          + f"(largest cost {r['max_cost']:.1f} points); cases scored for how far (named, a real tip "
                          "consequence): median relative error of the predicted shrink, truth inside the 90 % "
                          "interval", f"{r['named']} of {r['costly']}; {h['scored']}: "
