@@ -306,7 +306,7 @@ static void grid_mark(ss_state *s, double a_gt, double a_lt, double b_lt, double
     }
 }
 
-/* Preisach grid on [0, 1] (hysteresis.models._grid._grid, weighted output): returns the weighted up-fractions */
+/* Preisach grid on [0, 1] (hysteresis.models.preisach_grid_kernel, weighted output): the weighted up-fractions */
 static int grid_step(ss_state *s, double u, double *out)
 {
     const double h = 1.0 / GRID_N;

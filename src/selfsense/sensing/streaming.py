@@ -56,10 +56,9 @@ from typing import Any, Mapping
 import numpy as np
 from numba import njit
 
-from selfsense.hysteresis import _kernels
-from selfsense.hysteresis.models import DuhemH, LinearH, PlayH, PreisachH
-from selfsense.hysteresis.models._duhem import duhem_run
-from selfsense.hysteresis.models._grid import _grid, _play_output, _relax_output, relaxation_gains
+from selfsense.hysteresis import creep_kernel, gamma_kernel
+from selfsense.hysteresis.models import (DuhemH, LinearH, PlayH, PreisachH, duhem_run, play_output_kernel,
+                                         preisach_grid_kernel, relaxation_gains, relaxation_output_kernel)
 from selfsense.io.rig import rig_value
 from selfsense.sensing.core import _piezo_voltage, _shunt_current, _tip_linear, _trapezoid_increment
 
@@ -298,20 +297,22 @@ def _step_back(P, S, B, VH, aux):
 
 
 @njit(cache=True)
-def _h_array(PH, i):
-    """The i-th parameter array of ``_kernels.gamma_kernel`` held in ``PH`` (a contiguous view)."""
-    return PH[int(PH[_H_EDGES + i]):int(PH[_H_EDGES + i + 1])]
+def _packed_array(P, edges, i):
+    """The i-th array packed in ``P`` by :func:`_pack` (a contiguous view), ``edges`` the index of its edges
+    (``_H_EDGES``, ``_R_EDGES``)."""
+    return P[int(P[edges + i]):int(P[edges + i + 1])]
 
 
 @njit(cache=True)
 def _gauged_pi(Q, PH, p, c, xl, out):
     """Link 2 for Kuhnen's operator ``G`` (eq. 42) in the gauge ``H = sign * (G[Q] - c Q)`` (the registry
-    ``modified_pi``, the thesis ``GaugedH``) on a block: ``_kernels.gamma_kernel``, the kernel of ``ModifiedPI.apply``,
+    ``modified_pi``, the thesis ``GaugedH``) on a block: ``gamma_kernel``, the kernel of ``ModifiedPI.apply``,
     on the state arrays ``p``, ``c``, ``xl`` (updated in place), then the gauge. ``PH`` holds the operator's
     parameters (``_H_*``)."""
-    _kernels.gamma_kernel(Q, _h_array(PH, 0), _h_array(PH, 1), p, _h_array(PH, 2), _h_array(PH, 3), _h_array(PH, 4),
-                          c, xl, PH[_H_OFFSET], PH[_H_S0], _h_array(PH, 5), _h_array(PH, 6), _h_array(PH, 7),
-                          _h_array(PH, 8), out)
+    gamma_kernel(Q, _packed_array(PH, _H_EDGES, 0), _packed_array(PH, _H_EDGES, 1), p, _packed_array(PH, _H_EDGES, 2),
+                 _packed_array(PH, _H_EDGES, 3), _packed_array(PH, _H_EDGES, 4), c, xl, PH[_H_OFFSET], PH[_H_S0],
+                 _packed_array(PH, _H_EDGES, 5), _packed_array(PH, _H_EDGES, 6), _packed_array(PH, _H_EDGES, 7),
+                 _packed_array(PH, _H_EDGES, 8), out)
     sign = PH[_H_SIGN]
     cg = PH[_H_C]
     for k in range(Q.shape[0]):
@@ -319,20 +320,14 @@ def _gauged_pi(Q, PH, p, c, xl, out):
 
 
 @njit(cache=True)
-def _r_array(PR, i):
-    """The i-th parameter array of a registry model held in ``PR`` (a contiguous view)."""
-    return PR[int(PR[_R_EDGES + i]):int(PR[_R_EDGES + i + 1])]
-
-
-@njit(cache=True)
 def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
     """Link 2 for the registry's ``linear``, ``pi``, ``preisach`` (``LinearParamH.predict``: ``H = basis(u) w + a u
     + sum_j w_j (u - z_j) + b``, the relaxation bank of Kuhnen's creep operator, eqs. 38-41) and ``duhem``
     (``DuhemH.predict``: ``H = v[u] + sum_j w_j (u - z_j) + b + a u``), ``u = (Q - q_lo) / q_span``, on a block:
-    the kernels of ``predict`` (``_grid``, ``_play_output``, ``_relax_output``, ``duhem_run``) on the state arrays
-    (updated in place: the Preisach grid's ``Ms``, ``ms``, ``gs``, ``Fc``; the plays' or the Duhem map's ``zs``; the
-    creep filters' ``zc``), then the sums of ``predict`` in its order, sample by sample. ``PR`` holds the model's
-    parameters (``_R_*``)."""
+    the kernels of ``predict`` (``preisach_grid_kernel``, ``play_output_kernel``, ``relaxation_output_kernel``,
+    ``duhem_run``) on the state arrays (updated in place: the Preisach grid's ``Ms``, ``ms``, ``gs``, ``Fc``; the
+    plays' or the Duhem map's ``zs``; the creep filters' ``zc``), then the sums of ``predict`` in its order, sample by
+    sample. ``PR`` holds the model's parameters (``_R_*``)."""
     n = Q.shape[0]
     q_lo = PR[_R_QLO]
     q_span = PR[_R_QSPAN]
@@ -341,26 +336,26 @@ def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
         u[k] = (Q[k] - q_lo) / q_span
     a = PR[_R_A]
     if PR[_R_FORM] == _FORM_DUHEM:
-        v, _J = duhem_run(u, _r_array(PR, 5), int(PR[_R_DEG]), PR[_R_VLO], PR[_R_VSPAN], PR[_R_EPS], PR[_R_VMIN],
-                          PR[_R_VMAX], 1, False, zs)
+        v, _J = duhem_run(u, _packed_array(PR, _R_EDGES, 5), int(PR[_R_DEG]), PR[_R_VLO], PR[_R_VSPAN], PR[_R_EPS],
+                          PR[_R_VMIN], PR[_R_VMAX], 1, False, zs)
         for k in range(n):
             out[k] = v[k]
     else:
         ng = int(PR[_R_NGRID])
-        r = _r_array(PR, 1)
+        r = _packed_array(PR, _R_EDGES, 1)
         if ng > 0:   # preisach_grid_output, plus play_output with plays
             if gs[2] == 0.0:
                 gs[1] = 0.0
             F = np.zeros((n, 1))
-            _grid(u, 0.0, 1.0, ng, _r_array(PR, 0), True, 1, Ms, ms, gs, Fc, F)
+            preisach_grid_kernel(u, 0.0, 1.0, ng, _packed_array(PR, _R_EDGES, 0), True, 1, Ms, ms, gs, Fc, F)
             for k in range(n):
                 out[k] = F[k, 0]
             if r.shape[0]:
-                yp = _play_output(u, r, _r_array(PR, 2), zs)
+                yp = play_output_kernel(u, r, _packed_array(PR, _R_EDGES, 2), zs)
                 for k in range(n):
                     out[k] = out[k] + yp[k]
         elif r.shape[0]:
-            yp = _play_output(u, r, _r_array(PR, 2), zs)
+            yp = play_output_kernel(u, r, _packed_array(PR, _R_EDGES, 2), zs)
             for k in range(n):
                 out[k] = yp[k]
         else:
@@ -368,9 +363,9 @@ def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
                 out[k] = 0.0
         for k in range(n):
             out[k] = out[k] + a * u[k]
-    g = _r_array(PR, 3)
+    g = _packed_array(PR, _R_EDGES, 3)
     if g.shape[0]:
-        yc = _relax_output(u, g, _r_array(PR, 4), zc)
+        yc = relaxation_output_kernel(u, g, _packed_array(PR, _R_EDGES, 4), zc)
         for k in range(n):
             out[k] = out[k] + yc[k]
     b = PR[_R_B]
@@ -419,11 +414,11 @@ def _creep_advance(Q, r_K, a_K, dt, state):
     c = state["c"]
     if state["x"] is None:
         out = np.empty((len(Q), len(r_K), len(a_K)))
-        _kernels.creep_kernel(np.ascontiguousarray(Q, dtype=float), np.asarray(r_K, float), g, c, out)
+        creep_kernel(np.ascontiguousarray(Q, dtype=float), np.asarray(r_K, float), g, c, out)
     else:   # sample 0 of the block is the update from the previous block's last input
         xx = np.ascontiguousarray(np.concatenate([[state["x"]], Q]), dtype=float)
         out = np.empty((len(xx), len(r_K), len(a_K)))
-        _kernels.creep_kernel(xx, np.asarray(r_K, float), g, c, out)
+        creep_kernel(xx, np.asarray(r_K, float), g, c, out)
         out = out[1:]
     if len(Q):
         state["x"] = float(Q[-1])

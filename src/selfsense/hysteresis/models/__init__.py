@@ -29,11 +29,15 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from ._grid import (grid_state, play_features, play_output, preisach_grid_features, preisach_grid_output,
-                    preisach_grid_rows, relaxation_bank, relaxation_output)
+from ._duhem import duhem_run
+from ._grid import (grid_state, play_features, play_output, play_output_kernel, preisach_grid_features,
+                    preisach_grid_kernel, preisach_grid_output, preisach_grid_rows, relaxation_bank, relaxation_gains,
+                    relaxation_output, relaxation_output_kernel)
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
-           "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError"]
+           "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError",
+           # the compiled kernels of predict, for callers that compile them into their own loops (the stream)
+           "duhem_run", "preisach_grid_kernel", "play_output_kernel", "relaxation_output_kernel", "relaxation_gains"]
 
 #: at most this many rows enter a least-squares fit: longer calibration records are thinned to every k-th sample
 #: for the fit (the operators still run over every sample, and the stored sample time stays the data's)

@@ -15,8 +15,9 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["preisach_grid_features", "preisach_grid_rows", "preisach_grid_output", "relaxation_bank", "relaxation_output", "GRID_STACK",
-           "grid_state", "play_output", "relaxation_gains"]
+__all__ = ["preisach_grid_features", "preisach_grid_rows", "preisach_grid_output", "relaxation_bank",
+           "relaxation_output", "GRID_STACK", "grid_state", "play_output", "relaxation_gains", "preisach_grid_kernel",
+           "play_output_kernel", "relaxation_output_kernel"]
 
 _BIG = 1e300
 #: the weighted grid output is updated by the changed cells only and summed over every cell afresh every _RESYNC
@@ -45,9 +46,9 @@ def _prim(x, b0, top):
 
 
 def preisach_grid_features(u, lo, hi, n, stride=1, out=None):
-    """Cell up-fractions F (see :func:`_grid`), every ``stride``-th row, from the relaxed state; written into
-    ``out`` (``(ceil(len(u) / stride), n (n + 1) / 2)``, any row stride, e.g. the basis columns of a design
-    matrix) when given, which is returned."""
+    """Cell up-fractions F (see :func:`preisach_grid_kernel`), every ``stride``-th row, from the relaxed state;
+    written into ``out`` (``(ceil(len(u) / stride), n (n + 1) / 2)``, any row stride, e.g. the basis columns of a
+    design matrix) when given, which is returned."""
     Ms, ms, st, Fc = grid_state(n)
     st[1] = lo
     nc = int(n) * (int(n) + 1) // 2
@@ -57,20 +58,21 @@ def preisach_grid_features(u, lo, hi, n, stride=1, out=None):
     elif out.shape != (rows, nc) or out.dtype != np.float64 or out.strides[1] != 8:
         raise ValueError(f"preisach_grid_features: out must be float64 of shape {(rows, nc)} with contiguous rows, "
                          f"got {out.dtype} {out.shape}")
-    _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
-          int(stride), Ms, ms, st, Fc, out)
+    preisach_grid_kernel(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n), np.zeros(0), False,
+                         int(stride), Ms, ms, st, Fc, out)
     return out
 
 
 def preisach_grid_rows(u, lo, hi, n, stride, rows, out=None):
     """Rows ``rows`` (sorted, distinct indices of the grid ``0, stride, 2 stride, ...``) of
     :func:`preisach_grid_features` ``(u, lo, hi, n, stride)``, the same values bit for bit, without building the
-    others: the state still runs over every sample from the relaxed state, fed block after block (:func:`_grid`),
-    and a block of samples with no requested row writes one scratch row only. The same bits because a cell's
-    up-fraction is integrated afresh from the part of the staircase over that cell (:func:`_cell_fraction`) whenever
-    an input step marks it, and a step that marks no cell leaves that part unchanged: the value at a row does not
-    depend on which earlier rows were written. Used where a few rows of a long record are read (the hold rows,
-    :func:`selfsense.hysteresis.models.holds.hold_design`: about a quarter of every trial's samples)."""
+    others: the state still runs over every sample from the relaxed state, fed block after block
+    (:func:`preisach_grid_kernel`), and a block of samples with no requested row writes one scratch row only. The
+    same bits because a cell's up-fraction is integrated afresh from the part of the staircase over that cell
+    (:func:`_cell_fraction`) whenever an input step marks it, and a step that marks no cell leaves that part
+    unchanged: the value at a row does not depend on which earlier rows were written. Used where a few rows of a
+    long record are read (the hold rows, :func:`selfsense.hysteresis.models.holds.hold_design`: about a quarter of
+    every trial's samples)."""
     rows = np.asarray(rows, dtype=np.int64)
     nc = int(n) * (int(n) + 1) // 2
     stride = int(stride)
@@ -86,7 +88,7 @@ def preisach_grid_rows(u, lo, hi, n, stride, rows, out=None):
     Ms, ms, st, Fc = grid_state(n)
     st[1] = lo
     # the row a block without requested rows writes: a strided view, like the basis block of a design matrix that
-    # preisach_grid_features fills (numba compiles one variant of _grid per array layout)
+    # preisach_grid_features fills (numba compiles one variant of preisach_grid_kernel per array layout)
     scratch = np.empty((2, nc + 1))[:, :nc]
     none = np.zeros(0)
     cut = np.flatnonzero(np.diff(rows) != 1) + 1   # runs of consecutive rows
@@ -94,9 +96,9 @@ def preisach_grid_rows(u, lo, hi, n, stride, rows, out=None):
     for a, b in zip(np.concatenate([[0], cut]), np.concatenate([cut, [rows.size]])):
         s0 = int(rows[a]) * stride
         if s0 > k0:   # the samples before this run: the state only
-            _grid(u[k0:s0], float(lo), float(hi), int(n), none, False, s0 - k0, Ms, ms, st, Fc, scratch)
+            preisach_grid_kernel(u[k0:s0], float(lo), float(hi), int(n), none, False, s0 - k0, Ms, ms, st, Fc, scratch)
         e0 = min(u.size, int(rows[b - 1]) * stride + stride)
-        _grid(u[s0:e0], float(lo), float(hi), int(n), none, False, stride, Ms, ms, st, Fc, out[a:b])
+        preisach_grid_kernel(u[s0:e0], float(lo), float(hi), int(n), none, False, stride, Ms, ms, st, Fc, out[a:b])
         k0 = e0
     return out
 
@@ -113,8 +115,8 @@ def preisach_grid_output(u, lo, hi, n, w, state=None):
     if st[2] == 0.0:
         st[1] = lo
     F = np.zeros((len(u), 1))
-    _grid(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
-          np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc, F)
+    preisach_grid_kernel(np.ascontiguousarray(u, dtype=np.float64), float(lo), float(hi), int(n),
+                         np.ascontiguousarray(w, dtype=np.float64), True, 1, Ms, ms, st, Fc, F)
     return F[:, 0]
 
 
@@ -166,7 +168,7 @@ def _mark(dirty, dl, nd, n, lo, h, a_gt, a_lt, b_lt, b_gt):
 
 
 @njit(cache=True, nogil=True)
-def _grid(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc, F):
+def preisach_grid_kernel(u, lo, hi, n, w, weighted, stride, Ms, ms, st, Fc, F):
     """Features F (len(u), n (n + 1) / 2) of the Preisach grid on [lo, hi] (inputs are clipped to it), written
     into ``F``; with ``stride`` > 1 only every stride-th row is kept (the state still runs over every sample).
     Weighted, ``F`` is (len(u), 1) and receives the output ``F @ w``. The state (stacks
@@ -313,7 +315,7 @@ def relaxation_output(u, dt: float, tau_s, w, state=None) -> np.ndarray:
     u = np.ascontiguousarray(u, dtype=float)
     zs = np.zeros(len(tau_s)) if state is None else state
     g = relaxation_gains(dt, tau_s)
-    return _relax_output(u, g, np.asarray(w, dtype=float)[:len(g)], zs)
+    return relaxation_output_kernel(u, g, np.asarray(w, dtype=float)[:len(g)], zs)
 
 
 def relaxation_gains(dt: float, tau_s) -> np.ndarray:
@@ -322,7 +324,7 @@ def relaxation_gains(dt: float, tau_s) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _relax_output(u, g, w, zs):
+def relaxation_output_kernel(u, g, w, zs):
     """``sum_j w_j (u - z_j)``, ``z_j += g_j (u - z_j)``, summed in the order of j from 0 (the sum of
     ``w_j * _relax(u, g_j)`` columns, bit for bit)."""
     y = np.zeros(u.size)
@@ -343,12 +345,14 @@ def play_output(u, r, w, state=None):
     """``sum_i w_i P_{r_i}[u]`` (plays from z = 0, or from ``state``, which is updated in place), memory
     O(len(u))."""
     z = np.zeros(len(r)) if state is None else state
-    return _play_output(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64),
-                        np.ascontiguousarray(w, dtype=np.float64), z)
+    return play_output_kernel(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64),
+                              np.ascontiguousarray(w, dtype=np.float64), z)
 
 
 @njit(cache=True, nogil=True)
-def _play_output(u, r, w, z):
+def play_output_kernel(u, r, w, z):
+    """``sum_i w_i P_{r_i}[u]`` from the play states ``z`` (updated in place): the compiled loop of
+    :func:`play_output`, on contiguous float64 arrays."""
     y = np.zeros(u.size)
     for k in range(u.size):
         x = u[k]
