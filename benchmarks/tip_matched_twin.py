@@ -29,7 +29,7 @@ def _matched(rec: dict) -> float:
 
 def rescore(recs: list[dict], jobs: int = 1) -> list[dict]:
     """``recs`` with the matched twin added to every excitation-effect case that lacks it (a new list)."""
-    from selfsense.gap.blind import EXCITATION_EFFECTS
+    from selfsense.gap.blind import EXCITATION_EFFECTS, set_model_truths
     from selfsense.parallel import fork_map
 
     todo = [i for i, r in enumerate(recs)
@@ -37,10 +37,7 @@ def rescore(recs: list[dict], jobs: int = 1) -> list[dict]:
     got = fork_map(_matched, [recs[i] for i in todo], jobs) if todo else []
     out = [dict(r) for r in recs]
     for i, e in zip(todo, got):
-        r = out[i]
-        r["error_without_matched"] = float(e)
-        r["true_shrink_from_base"] = {k: float(b) - float(e) for k, b in (r.get("base") or {}).items()}
-        r["true_all_from_base"] = float(r["base_all"]) - float(e)
+        out[i] = set_model_truths(out[i], e)
     return out
 
 

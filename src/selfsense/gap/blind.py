@@ -327,7 +327,10 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     with the member off where the estimator already carries it) minus the twin's Table 3. ``true_shrink`` stays the
     effect's cost to the user (Table 3 minus the twin's). "All together" (``shrink_all``: the named effects corrected
     at once, from ``base_all``, the chain with every carried confirmed member off) is scored against the twin from
-    the same base (``true_all_from_base``)."""
+    the same base (``true_all_from_base``). Where the case holds an effect of :data:`EXCITATION_EFFECTS` (the
+    amplifier's limits) both truths are taken from the excitation-matched twin instead (:func:`matched_twin_error`,
+    recorded as ``error_without_matched``; for a joint case: without any of its effects, driven with the voltage the
+    case's amplifier applied), while ``true_shrink`` keeps the effect-free twin (:func:`set_model_truths`)."""
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
     from .counterfactual import _summary, counterfactual, tip_table
@@ -346,22 +349,31 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     e_without = _summary(tip_table(tr0, me0, rig0, mk))["mean"]
     e_noise = _summary(tip_table(trn, men, rign, mk))["mean"]
     e_matched = matched_twin_error(c, mk, truth) if set(eff) & EXCITATION_EFFECTS else None
-    e_model = e_without if e_matched is None else e_matched   # the twin "how far" is scored against
     base = {k: v["base"]["mean"] for k, v in cf["effects"].items()}
     base_all = cf["base"]["mean"] if "base" in cf else cf["before"]["mean"]
     out = {"case": int(i), "seed": int(seed), "family": fam, "manifest": c, "top": d["top"],
            "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
            "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
            "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
-           "base": base, "true_shrink_from_base": {k: b - e_model for k, b in base.items()},
-           "error_without": e_without, "error_noise": e_noise,
+           "base": base, "error_without": e_without, "error_noise": e_noise,
            "true_shrink": cf["before"]["mean"] - e_without, "base_all": base_all,
            "shrink_all": cf.get("shrink_all", 0.0),
            "shrink_all_interval_90": cf.get("shrink_all_interval_90", [0.0, 0.0]),
-           "true_all_from_base": base_all - e_model, "seconds": time.perf_counter() - t0}
+           "seconds": time.perf_counter() - t0}
+    return set_model_truths(out, e_matched)
+
+
+def set_model_truths(r: dict, e_matched: float | None = None) -> dict:
+    """``r`` (a tip-tier record with ``base``, ``base_all`` and ``error_without``) with the truths its predictions are
+    scored against: ``true_shrink_from_base`` per effect and ``true_all_from_base``, each its base minus the twin's
+    Table 3 -- the excitation-matched twin's (``e_matched``, recorded as ``error_without_matched``) where given, else
+    the effect-free twin's. ``true_shrink`` (the effect's cost: Table 3 minus the effect-free twin's) is not touched."""
+    e_model = float(r["error_without"] if e_matched is None else e_matched)
     if e_matched is not None:
-        out["error_without_matched"] = e_matched
-    return out
+        r["error_without_matched"] = float(e_matched)
+    r["true_shrink_from_base"] = {k: float(b) - e_model for k, b in (r.get("base") or {}).items()}
+    r["true_all_from_base"] = float(r["base_all"]) - e_model
+    return r
 
 
 #: effects that change the voltage the actuators receive, not only what the estimator is told: for them the truth of
@@ -516,8 +528,8 @@ def write_tip_scores(recs: list[dict], sc: dict, out: Path, command: str) -> Non
           "device, drive and noise re-simulated without the effect, scored from the prediction's own base (Table 3, "
           "or the chain without the carried member); for an effect that changes the voltage the actuators receive "
           "(the amplifier's limits) the twin is driven with the voltage the case's amplifier applied (the "
-          "excitation-matched twin: what modelling the effect can give back), while the cost table keeps the "
-          "effect-free twin (the effect's cost to the user)."
+          "excitation-matched twin), while the cost columns of the cost table keep the effect-free twin (the "
+          "effect's cost to the user; its shrink-error column is scored as the how-far table)."
           + (" Amplifier cases without a matched twin in their record are scored against the effect-free twin."
              if any(set(r["manifest"]["effects"]) & EXCITATION_EFFECTS and "error_without_matched" not in r
                     for r in recs) else "")
