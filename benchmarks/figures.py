@@ -64,6 +64,7 @@ DATES = {
     "gap_tip_14142": "2026-11-26",
     "gap_tip_20261202": "2026-12-02",
     "gap_tip_20261213": "2026-12-04",
+    "gap_tip_20261213_matched": "2026-12-04",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
     "gap_joint_20261204": "2026-12-02",
@@ -181,6 +182,8 @@ COMMANDS = {
     # the stage diagnosis with the Preisach stand-in H (its first tip tier)
     "gap_tip_20261202": "selfsense gap blind --tip --n 80 --seed 20261202 --jobs 2 --out benchmarks/gap_tip/seed_20261202",
     "gap_tip_20261213": "selfsense gap blind --tip --n 80 --seed 20261213 --jobs 1 --out benchmarks/gap_tip/seed_20261213",
+    "gap_tip_20261213_matched": "python benchmarks/tip_matched_twin.py --records benchmarks/gap_tip/seed_20261213 "
+                                "--out benchmarks/gap_tip/seed_20261213_matched",
     # the joint tip tier (cases with 2-3 effects, the all-together prediction against the twin without them)
     "gap_joint_20261203": "python benchmarks/tip_joint.py --seed 20261203 --n 40 --jobs 1 --out "
                           "benchmarks/gap_tip/joint_20261203",
@@ -821,6 +824,25 @@ def gap_figures() -> list[Fig]:
                          "interval", f"{r['named']} of {r['costly']}; {h['scored']}: "
                          + ("-" if not h["scored"] else f"{h['median_error']:.2f}, {h['inside']} of {h['scored']}"),
                          ">= 90 %; <= 0.35", _met(ok_named and ok_how)))
+    msrc = "benchmarks/gap_tip/seed_20261213_matched/tip_scores.json"
+    if (ROOT / msrc).exists():
+        # the same records, predictions unchanged, the amplifier cases' truth from the excitation-matched twin
+        m = json.loads((ROOT / msrc).read_text())
+        M = lambda *a: Fig(*a, source=msrc, command=COMMANDS["gap_tip_20261213_matched"],  # noqa: E731
+                           date=DATES["gap_tip_20261213_matched"])
+        what = ("gap diagnostic, tip tier, seed 20261213 scored again, predictions unchanged, the amplifier limits' "
+                "truth from the excitation-matched twin (the voltage the case's amplifier applied)")
+        out.append(M(f"{what}: median relative error of the predicted tip shrink ({m['n_scored']} cases named right "
+                     "with a real tip consequence); true shrink inside the 90 % interval",
+                     f"{m['median_tip_shrink_error']:.3f}; {m['interval_coverage']:.2f}", "<= 0.25; >= 0.80",
+                     _met(m["median_tip_shrink_error"] <= 0.25 and m["interval_coverage"] >= 0.8)))
+        mrecs = [json.loads(x) for x in gzip.open(ROOT / msrc.replace("tip_scores.json", "tip_cases.jsonl.gz"), "rt")]
+        h = next(r for r in shrink_by_effect(mrecs) if r["effect"] == "rate.amplifier")
+        if h["scored"]:
+            out.append(M(f"{what}, rate.amplifier: cases scored for how far: median relative error of the predicted "
+                         "shrink, truth inside the 90 % interval",
+                         f"{h['scored']}: {h['median_error']:.2f}, {h['inside']} of {h['scored']}", "<= 0.35",
+                         _met(h["median_error"] <= 0.35)))
     from tip_joint import score as joint_score
 
     for folder, key, what in [

@@ -1,5 +1,8 @@
 """Chosen cases of the gap diagnostic's tip tier, scored again with the current code: the named effect's predicted tip
-shrink against the true one (the case's Table 3 minus that of its effect-free twin: same device, drive and noise).
+shrink against the true one (the case's Table 3 minus that of its effect-free twin: same device, drive and noise; for
+the amplifier's limits, since 2026-12-04, the true shrink is from the excitation-matched twin, the twin driven with the
+voltage the case's amplifier applied, ``selfsense.gap.blind.matched_twin_error``; the "effect-free twin" and "cost"
+columns stay the effect-free twin's).
 
     python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 \\
         --out benchmarks/gap_tip/amplifier_member.md

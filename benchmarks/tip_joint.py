@@ -1,6 +1,7 @@
 """Joint tip tier of the gap diagnostic: cases with two or three effects at once, the diagnosis's "all together"
 prediction (every named effect modelled at once) against the true joint shrink (the case's Table 3 minus that of its
-twin without any of the effects: same device, drive and noise).
+twin without any of the effects: same device, drive and noise; where the amplifier's limits are among them, the twin is
+driven with the voltage the case's amplifier applied, ``selfsense.gap.blind.matched_twin_error``, since 2026-12-04).
 
     python benchmarks/tip_joint.py --seed 20261203 --n 40 --jobs 2 --out benchmarks/gap_tip/joint_20261203
 
@@ -92,7 +93,8 @@ def markdown(s: dict, command: str, seconds: float | None) -> str:
          "model alone does not make Table 3 worse, before every named effect: chain members forced on, the "
          "others corrected with their stage-fitted coefficients, the estimator recalibrated), from its base (the "
          "chain with every carried confirmed member off). True: that base minus Table 3 of the twin without any of "
-         "the drawn effects (same device, drive and noise).", "",
+         "the drawn effects (same device, drive and noise; with the amplifier's limits among them, since 2026-12-04, "
+         "driven with the voltage the case's amplifier applied: the excitation-matched twin).", "",
          f"- tip noise floor: {s['tip_noise_floor']:.3f} points of range; cases with a true joint shrink above "
          f"{K_FLOORS:g} floors: {s['n_scored']} of {s['n']}",
          f"- median |predicted - true| / |true|: **{f(s['median_error'])}** (75th percentile {f(s['p75_error'])}); "

@@ -99,3 +99,22 @@ def test_the_diagnostic_and_the_stream_see_the_adopted_member(limited):
         SelfSensingStream(est, dt=1.0 / FS_CASE)
     with pytest.raises(ExportError, match="amplifier member"):
         c_sources(est, rig, 1.0 / FS_CASE)
+
+
+def test_excitation_matched_twin_receives_the_applied_voltage(limited):
+    """The tip tier's truth for an amplifier limit (selfsense.gap.blind.matched_twin_error): the effect-free device
+    driven with the voltage the limited amplifier applied. Its actuators receive the case's voltage (to the DAQ's
+    command resolution and the amplifier's bandwidth) and its log's V is that voltage, so the twin differs from the
+    case only in what the estimator is told, not in the excitation."""
+    tr, me, rig, truth = limited
+    applied = {t: truth[t]["V_c"].to_numpy(float) for t in tr}
+    trm, mem, rigm, truthm = simulate_family_case(FAMILY, DEVICE, {}, NOISE, T_CASE, FS_CASE, with_truth=True,
+                                                  applied_v=applied)
+    assert list(mem["signal"]) == list(me["signal"])   # trials.csv keeps the protocol's signal names
+    for t in tr:
+        span = np.ptp(applied[t])
+        assert np.max(np.abs(truthm[t]["V_c"].to_numpy(float) - applied[t])) < 1e-3 * span
+        assert np.max(np.abs(truthm[t]["V"].to_numpy(float) - truth[t]["V"].to_numpy(float))) < 1e-3 * span
+        # the case's log is off by tens of volts while limited; the matched twin's log is its actuator voltage
+        assert np.max(np.abs(tr[t]["V"].to_numpy() - truth[t]["V"].to_numpy())) > 0.1 * span
+        assert np.max(np.abs(trm[t]["V"].to_numpy() - truthm[t]["V"].to_numpy())) < 1e-3 * span

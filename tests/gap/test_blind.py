@@ -180,3 +180,32 @@ def test_joint_tier_scores_the_all_together_prediction_against_the_twin():
     assert s["coverage"] == pytest.approx(0.5) and s["runaways"] == 1
     assert (s["drawn_named"], s["n_drawn"], s["false_named"]) == (2, 6, 1)
     assert "| 1 | gpi | slow.leakage, slow.temperature |" in tj.markdown(s, "cmd", None)
+
+
+def test_matched_twin_rescoring_changes_only_the_truth_of_excitation_effects(monkeypatch, tmp_path):
+    """benchmarks/tip_matched_twin.py: an amplifier case's "how far" truth becomes its base minus the excitation-matched
+    twin's Table 3 (all together too); its cost (case minus the effect-free twin) and every other case stay as
+    recorded; the campaign's own folder is never overwritten."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("tip_matched_twin", ROOT / "benchmarks" / "tip_matched_twin.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    monkeypatch.setattr(mod, "_matched", lambda rec: 29.75)
+
+    def rec(effect, base, before):
+        return {"manifest": {"effects": {effect: 5.0}}, "base": {effect: base}, "base_all": base, "before": before,
+                "error_without": 5.0, "true_shrink": before - 5.0, "true_shrink_from_base": {effect: base - 5.0},
+                "true_all_from_base": base - 5.0, "predicted_shrink": {effect: -0.96}, "interval": {effect: [-17.7, 13.9]},
+                "top": effect, "effects": [effect], "error_noise": 5.3}
+
+    amp, leak = rec("rate.amplifier", 36.61, 37.56), rec("slow.leakage", 10.0, 10.0)
+    out = mod.rescore([amp, leak], jobs=1)
+    assert out[0]["error_without_matched"] == 29.75
+    assert out[0]["true_shrink_from_base"] == {"rate.amplifier": pytest.approx(36.61 - 29.75)}
+    assert out[0]["true_all_from_base"] == pytest.approx(36.61 - 29.75)
+    assert out[0]["true_shrink"] == pytest.approx(37.56 - 5.0)   # the cost to the user: the effect-free twin
+    assert out[1] == leak and amp["true_shrink_from_base"] == {"rate.amplifier": pytest.approx(31.61)}  # inputs kept
+    (tmp_path / "tip_cases.jsonl.gz").write_bytes(b"")
+    with pytest.raises(SystemExit, match="--out must differ"):
+        mod.main(["--records", str(tmp_path), "--out", str(tmp_path)])

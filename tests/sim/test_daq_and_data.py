@@ -88,6 +88,22 @@ def test_same_noise_in_counterfactuals(free_trial):
     assert not la.v_shunt.equals(lb.v_shunt)
 
 
+def test_samples_signal_is_the_drive_it_is_given(free_trial):
+    """``signal: samples`` drives the trial with the given supply voltage: the protocol waveform itself, given sample
+    by sample, is the same trial bit for bit (same noise, same DAQ); a wrong length is refused, naming the trial."""
+    from selfsense.sim.drive import waveform
+
+    fs = 1000.0
+    t = np.arange(int(round(free_trial["duration"] * fs))) / fs
+    v = waveform(t, free_trial, start=float(free_trial.get("relay_s", 0.75)) + 0.25)
+    la, ta = simulate_trial(free_trial, seed=5, sample_rate_hz=fs)
+    lb, tb = simulate_trial(dict(free_trial, signal="samples", samples_v=v), seed=5, sample_rate_hz=fs)
+    pd.testing.assert_frame_equal(la, lb)
+    pd.testing.assert_frame_equal(ta, tb)
+    with pytest.raises(ValueError, match=r"trial 't_free'.*samples_v.*one finite value per DAQ sample"):
+        simulate_trial(dict(free_trial, signal="samples", samples_v=v[:-1]), sample_rate_hz=fs)
+
+
 def test_unknown_effect_and_scenario_key_rejected(free_trial):
     with pytest.raises(ValueError, match="too short"):
         simulate_trial(dict(free_trial, duration=1.5))

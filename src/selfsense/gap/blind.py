@@ -327,7 +327,10 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     with the member off where the estimator already carries it) minus the twin's Table 3. ``true_shrink`` stays the
     effect's cost to the user (Table 3 minus the twin's). "All together" (``shrink_all``: the named effects corrected
     at once, from ``base_all``, the chain with every carried confirmed member off) is scored against the twin from
-    the same base (``true_all_from_base``)."""
+    the same base (``true_all_from_base``). Where the case holds an effect of :data:`EXCITATION_EFFECTS` (the
+    amplifier's limits) both truths are taken from the excitation-matched twin instead (:func:`matched_twin_error`,
+    recorded as ``error_without_matched``; for a joint case: without any of its effects, driven with the voltage the
+    case's amplifier applied), while ``true_shrink`` keeps the effect-free twin (:func:`set_model_truths`)."""
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
     from .counterfactual import _summary, counterfactual, tip_table
@@ -337,7 +340,7 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
     fam, ds, ns, eff = c["family"], c["device_seed"], c["noise_seed"], c["effects"]
     t0 = time.perf_counter()
-    tr, me, rig = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE)
+    tr, me, rig, truth = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE, with_truth=True)
     d = diagnose_stages(tr, me, rig, thr)
     fitted = mk(rig).fit(tr, me)
     cf = counterfactual(tr, me, rig, d, mk, n_boot=100, seed=int(i), max_effects=max_effects, fitted=fitted)
@@ -345,18 +348,60 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     trn, men, rign = simulate_family_case(fam, ds, {}, ns + 104_729, T_CASE, FS_CASE)
     e_without = _summary(tip_table(tr0, me0, rig0, mk))["mean"]
     e_noise = _summary(tip_table(trn, men, rign, mk))["mean"]
+    e_matched = matched_twin_error(c, mk, truth) if set(eff) & EXCITATION_EFFECTS else None
     base = {k: v["base"]["mean"] for k, v in cf["effects"].items()}
     base_all = cf["base"]["mean"] if "base" in cf else cf["before"]["mean"]
-    return {"case": int(i), "seed": int(seed), "family": fam, "manifest": c, "top": d["top"],
-            "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
-            "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
-            "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
-            "base": base, "true_shrink_from_base": {k: b - e_without for k, b in base.items()},
-            "error_without": e_without, "error_noise": e_noise,
-            "true_shrink": cf["before"]["mean"] - e_without, "base_all": base_all,
-            "shrink_all": cf.get("shrink_all", 0.0),
-            "shrink_all_interval_90": cf.get("shrink_all_interval_90", [0.0, 0.0]),
-            "true_all_from_base": base_all - e_without, "seconds": time.perf_counter() - t0}
+    out = {"case": int(i), "seed": int(seed), "family": fam, "manifest": c, "top": d["top"],
+           "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
+           "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
+           "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
+           "base": base, "error_without": e_without, "error_noise": e_noise,
+           "true_shrink": cf["before"]["mean"] - e_without, "base_all": base_all,
+           "shrink_all": cf.get("shrink_all", 0.0),
+           "shrink_all_interval_90": cf.get("shrink_all_interval_90", [0.0, 0.0]),
+           "seconds": time.perf_counter() - t0}
+    return set_model_truths(out, e_matched)
+
+
+def set_model_truths(r: dict, e_matched: float | None = None) -> dict:
+    """``r`` (a tip-tier record with ``base``, ``base_all`` and ``error_without``) with the truths its predictions are
+    scored against: ``true_shrink_from_base`` per effect and ``true_all_from_base``, each its base minus the twin's
+    Table 3 -- the excitation-matched twin's (``e_matched``, recorded as ``error_without_matched``) where given, else
+    the effect-free twin's. ``true_shrink`` (the effect's cost: Table 3 minus the effect-free twin's) is not touched."""
+    e_model = float(r["error_without"] if e_matched is None else e_matched)
+    if e_matched is not None:
+        r["error_without_matched"] = float(e_matched)
+    r["true_shrink_from_base"] = {k: float(b) - e_model for k, b in (r.get("base") or {}).items()}
+    r["true_all_from_base"] = float(r["base_all"]) - e_model
+    return r
+
+
+#: effects that change the voltage the actuators receive, not only what the estimator is told: for them the truth of
+#: "how far it shrinks once modelled" is the excitation-matched twin (:func:`matched_twin_error`)
+EXCITATION_EFFECTS = frozenset({"rate.amplifier"})
+
+
+def matched_twin_error(c: dict, make_estimator, truth: dict | None = None) -> float:
+    """Table 3 [% of range] of the case's *excitation-matched* twin: the same device and noise without any effect,
+    driven with the supply voltage the case's amplifier actually applied (the simulator truth's ``V_c`` as the
+    command, so that the log's command is the voltage the actuators received).
+
+    An amplifier at its current or slew limit does two things: the logged command no longer tells the estimator the
+    actuator voltage (what an amplifier model can give back), and the actuators receive a smaller, slower excitation
+    than the protocol asked for (what no model of the measurement gives back: the references' ranges shrink with it,
+    and Table 3 is in % of those ranges; on case 74 of seed 20261213 the force trial's range was 14 times smaller than
+    the effect-free twin's, Table 3 37.6 % against the twin's 5.0 %). The effect-free twin measures the effect's cost
+    to the user (``true_shrink``); this twin measures the part that modelling the effect can remove, which is what
+    the diagnosis predicts (docs/gap.md, "Tip tier"). ``truth``: the case's simulator truth, if at hand (else the
+    case is simulated again)."""
+    from .counterfactual import _summary, tip_table
+
+    fam, ds, ns, eff = c["family"], c["device_seed"], c["noise_seed"], c["effects"]
+    if truth is None:
+        _, _, _, truth = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE, with_truth=True)
+    applied = {t: np.asarray(tt["V_c"], dtype=float) for t, tt in truth.items()}
+    trm, mem, rigm = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE, applied_v=applied)
+    return float(_summary(tip_table(trm, mem, rigm, make_estimator))["mean"])
 
 
 def _truth(r: dict, e: str) -> float:
@@ -481,7 +526,13 @@ def write_tip_scores(recs: list[dict], sc: dict, out: Path, command: str) -> Non
           "not corrected but switched: forced on where the fitted estimator does not carry it, and where it does, "
           "its own contribution (Table 3 of the chain recalibrated with it off, minus Table 3). True: the same "
           "device, drive and noise re-simulated without the effect, scored from the prediction's own base (Table 3, "
-          "or the chain without the carried member)."
+          "or the chain without the carried member); for an effect that changes the voltage the actuators receive "
+          "(the amplifier's limits) the twin is driven with the voltage the case's amplifier applied (the "
+          "excitation-matched twin), while the cost columns of the cost table keep the effect-free twin (the "
+          "effect's cost to the user; its shrink-error column is scored as the how-far table)."
+          + (" Amplifier cases without a matched twin in their record are scored against the effect-free twin."
+             if any(set(r["manifest"]["effects"]) & EXCITATION_EFFECTS and "error_without_matched" not in r
+                    for r in recs) else "")
           + ("" if all("true_shrink_from_base" in r for r in recs) else
              " Records without `true_shrink_from_base` were written when a carried member was predicted 0: they are "
              "scored against Table 3 minus the twin's."), "",

@@ -134,11 +134,14 @@ def _protocol(T: float, fs: float, drive_seed: int, stroke: float, amp: float) -
 
 
 def simulate_family_case(family: str, device_seed: int, effects: dict, noise_seed: int, T: float = 10.0,
-                         fs: float = 400.0, drive_seed: int | None = None, with_truth: bool = False):
+                         fs: float = 400.0, drive_seed: int | None = None, with_truth: bool = False,
+                         applied_v: dict | None = None):
     """In-memory dataset ``(trials, meta, rig[, truth])`` of one family device with ``effects`` (library names,
     relative magnitudes), converted through ``selfsense.io.to_si`` and ``selfsense.signals.prepare_trial`` exactly
     like a disk dataset. ``noise_seed`` sets the sensor noise; ``drive_seed`` (default ``device_seed``) the
-    protocol."""
+    protocol. ``applied_v`` (trial -> supply voltage per sample [V], e.g. the truth's ``V_c`` of another run): each
+    trial is driven with that voltage as its command (the simulator's ``samples`` signal) instead of its protocol
+    waveform; trials.csv keeps the protocol's signal names."""
     from selfsense.io import to_si
     from selfsense.signals import prepare_trial
     from selfsense.sim import load_device, rig_dict, simulate_scenario_in_memory
@@ -150,6 +153,9 @@ def simulate_family_case(family: str, device_seed: int, effects: dict, noise_see
         sname = _LIB2SIM[name]
         sim_eff[sname] = float(mag) * SIM_EFFECTS[sname][1]
     spec = _protocol(T, fs, int(device_seed if drive_seed is None else drive_seed), stroke, amp)
+    signal = {s["trial"]: s.get("signal", "steps") for s in spec}
+    if applied_v is not None:
+        spec = [dict(s, signal="samples", samples_v=np.asarray(applied_v[s["trial"]], float)) for s in spec]
     sc = {"name": f"gap_{family}_{device_seed}", "seed": int(noise_seed), "sample_rate_hz": fs, "substeps": SUBSTEPS,
           "device": dev, "effects_defaults": False, "effects": sim_eff, "trials": spec}
     res = simulate_scenario_in_memory(sc, int(noise_seed))
@@ -160,6 +166,6 @@ def simulate_family_case(family: str, device_seed: int, effects: dict, noise_see
         trials[s["trial"]] = prepare_trial(to_si(log, rig, s["reference"]), rig)
         rows.append({"trial": s["trial"], "file": s["trial"] + ".parquet", "role": s["role"], "tip": s["tip"],
                      "object_mm": s.get("object_mm", np.nan), "reference": s["reference"],
-                     "signal": s.get("signal", "steps")})
+                     "signal": signal[s["trial"]]})
     meta = pd.DataFrame(rows).set_index("trial")
     return (trials, meta, rig, truth) if with_truth else (trials, meta, rig)

@@ -35,8 +35,18 @@ def _knots_eval(t, knots):
 
 def waveform(t: np.ndarray, spec: dict, start: float) -> np.ndarray:
     """Target supply voltage [V] for a trial spec (keys: signal, amplitude [V], freq [Hz],
-    levels, hold_s, ramp_s) beginning at ``start`` [s] (after the relay)."""
+    levels, hold_s, ramp_s) beginning at ``start`` [s] (after the relay).
+
+    ``signal: samples``: the target given sample by sample in ``samples_v`` (one value [V] per DAQ sample of the
+    trial, from t = 0; the relay's samples are set to 0 by the caller), e.g. the supply voltage an amplifier actually
+    applied in another run (the excitation-matched twin of the gap diagnostic's tip tier, docs/gap.md)."""
     sig = spec.get("signal", "sine")
+    if sig == "samples":
+        v = np.asarray(spec.get("samples_v", ()), dtype=float).ravel()
+        if v.shape != t.shape or not np.all(np.isfinite(v)):
+            raise ValueError(f"trial {spec.get('trial')!r}: signal 'samples' needs samples_v with one finite value "
+                             f"per DAQ sample ({t.size}), found {v.size} values")
+        return v.copy()
     A = float(spec.get("amplitude", 150.0))
     f = float(spec.get("freq", 0.5))
     T = float(t[-1]) if t.size else 0.0
@@ -96,5 +106,5 @@ def waveform(t: np.ndarray, spec: dict, start: float) -> np.ndarray:
         if vc != 0.0:
             add(ramp, 0.0, "lin")
     else:
-        raise ValueError(f"unknown signal {sig!r} (sine | mixed | steps)")
+        raise ValueError(f"unknown signal {sig!r} (sine | mixed | steps | samples)")
     return _knots_eval(t, knots)

@@ -43,7 +43,7 @@ __all__ = ["simulate_trial", "simulate_scenario_in_memory", "simulate_dataset", 
 LOG_COLUMNS = ("t", "u_cmd", "v_shunt", "laser", "load_cell", "relay")
 TRUTH_COLUMNS = ("t", "q", "V", "V_p", "V_H", "x_pzt", "dx_tip", "f_tip")
 TRIAL_KEYS = {"trial", "role", "tip", "object_mm", "reference", "signal", "duration", "amplitude", "freq",
-              "relay_s", "rest_before_s", "levels", "hold_s", "ramp_s"}
+              "relay_s", "rest_before_s", "levels", "hold_s", "ramp_s", "samples_v"}
 SCENARIO_KEYS = {"name", "seed", "sample_rate_hz", "substeps", "device", "effects", "effects_defaults",
                  "trials", "description", "randomise"}   # randomise: a record of what draw_device drew (not used here)
 MODE_F_REF = 50.0
