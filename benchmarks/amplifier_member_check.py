@@ -5,12 +5,13 @@
 
 Per tip case of the gap diagnostic (``seed/case`` of ``selfsense gap blind --tip``) with an amplifier at its limits:
 Table 3 (mean of displacement and force, % of range) of the default estimator with the amplifier member decided by
-the data (``auto``) and forced off; the same error on the calibration trials (in sample, what a check of the member on
-the calibration references could read); and Table 3 of the excitation-matched twin (the same device and noise without
-the effect, driven with the voltage the case's amplifier applied: ``selfsense.gap.blind.matched_twin_error``), what a
-perfect amplifier model could reach; and, beside it, Table 3 of the case's own log with the command channel showing the
-applied voltage (``V = V_c - V_s`` with the simulator truth's ``V_c``; the charge and the shunt signal as measured):
-the same question asked of the case's data instead of a twin's.
+the data (``auto``) and forced off; the same error on the calibration trials after the relay release (in sample,
+``member_ab.calibration_error``: what a check of the member on the calibration references could read); Table 3 of
+the excitation-matched twin (the same device and noise without the effect, driven with the voltage the case's
+amplifier applied: ``selfsense.gap.blind.matched_twin_error``), what a perfect amplifier model could reach; and,
+beside it, Table 3 of the case's own log with the command channel showing the applied voltage (``V = V_c - V_s`` with
+the simulator truth's ``V_c``; the charge and the shunt signal as measured): the same question asked of the case's
+data instead of a twin's.
 """
 from __future__ import annotations
 
@@ -21,19 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _cal_error(est, trials, meta) -> float:
-    """Mean over the calibration trials of mean |estimate - reference| in % of the trial's reference range."""
-    errs = []
-    for t, m in meta.iterrows():
-        if m["role"] != "calibration":
-            continue
-        ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
-        y = trials[t][ref].to_numpy(float)
-        yh = est.estimate(trials[t])[col].to_numpy(float)
-        ok = np.isfinite(y) & np.isfinite(yh)
-        errs.append(100.0 * np.mean(np.abs(yh[ok] - y[ok])) / np.ptp(y[ok]))
-    return float(np.mean(errs))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from member_ab import calibration_error  # noqa: E402
 
 
 def check(seed: int, i: int) -> dict:
@@ -49,7 +39,7 @@ def check(seed: int, i: int) -> dict:
     for mode in ("auto", "off"):
         est = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"amplifier": mode}).fit(tr, me)
         row[f"table3_{mode}"] = float(_summary(tip_table(tr, me, rig, None, estimator=est))["mean"])
-        row[f"cal_{mode}"] = _cal_error(est, tr, me)
+        row[f"cal_{mode}"] = calibration_error(est, tr, me)
         if mode == "auto":
             row["adopted"] = bool((est.amplifier_ or {}).get("applied"))
     mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
@@ -79,8 +69,9 @@ def main(argv=None) -> int:
     rows = [check(s, i) for s, i in cases]
     f = lambda x: f"{x:.2f}"  # noqa: E731
     md = ["# Amplifier member: Table 3 against a calibration-side check", "",
-          "Command: `python benchmarks/amplifier_member_check.py " + " ".join(argv if argv is not None else sys.argv[1:])
-          + "`", "", f"Made {datetime.now(timezone.utc):%Y-%m-%d}. " + __doc__.split("\n\n", 2)[2].strip(), "",
+          "Command: `python benchmarks/amplifier_member_check.py "
+          + " ".join(argv if argv is not None else sys.argv[1:]) + "`", "",
+          f"Made {datetime.now(timezone.utc):%Y-%m-%d}. " + __doc__.split("\n\n", 2)[2].strip(), "",
           "| case | family | limit magnitude | adopted | Table 3 auto | Table 3 off | calibration trials auto | "
           "calibration trials off | excitation-matched twin | case's log, applied voltage |",
           "|---|---|---|---|---|---|---|---|---|---|"]

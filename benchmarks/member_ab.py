@@ -21,6 +21,23 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 
+def calibration_error(est, trials, meta) -> float:
+    """The calibration trials' own error (their references), what a guard could see: mean over the calibration trials
+    of mean |estimate - reference| after the relay release, in % of the trial's reference range."""
+    import numpy as np
+
+    cal = []
+    for t, m in meta.iterrows():
+        if m["role"] != "calibration":
+            continue
+        ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
+        y = trials[t][ref].to_numpy(float)
+        yh = est.estimate(trials[t])[col].to_numpy(float)
+        ok = np.isfinite(y) & (trials[t]["relay"].to_numpy() < 0.5)
+        cal.append(float(np.mean(np.abs(yh[ok] - y[ok])) * 100 / np.ptp(y[ok])))
+    return float(np.mean(cal))
+
+
 def _one(args):
     import numpy as np
 
@@ -41,16 +58,7 @@ def _one(args):
         if mode == "auto":
             dec = getattr(est, f"{member}_", None)
             out["adopted"] = bool(dec.get("applied")) if isinstance(dec, dict) else None
-        cal = []   # the calibration trials' own error (their references), what a guard could see
-        for t, m in me.iterrows():
-            if m["role"] != "calibration":
-                continue
-            ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
-            y = tr[t][ref].to_numpy(float)
-            yh = est.estimate(tr[t])[col].to_numpy(float)
-            ok = np.isfinite(y) & (tr[t]["relay"].to_numpy() < 0.5)
-            cal.append(float(np.mean(np.abs(yh[ok] - y[ok])) * 100 / np.ptp(y[ok])))
-        out[f"calibration_{mode}"] = float(np.mean(cal))
+        out[f"calibration_{mode}"] = calibration_error(est, tr, me)
     # the twin with the member decided by the data too (a member that is off by default would never be adopted on
     # it otherwise); where it is adopted there (a false adoption), the twin's Table 3 is the one with the member off
     est0 = SelfSensingEstimator(config=SensingConfig(), rig=rig0, members={member: "auto"}).fit(tr0, me0)

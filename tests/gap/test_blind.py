@@ -196,7 +196,8 @@ def test_matched_twin_rescoring_changes_only_the_truth_of_excitation_effects(mon
     def rec(effect, base, before):
         return {"manifest": {"effects": {effect: 5.0}}, "base": {effect: base}, "base_all": base, "before": before,
                 "error_without": 5.0, "true_shrink": before - 5.0, "true_shrink_from_base": {effect: base - 5.0},
-                "true_all_from_base": base - 5.0, "predicted_shrink": {effect: -0.96}, "interval": {effect: [-17.7, 13.9]},
+                "true_all_from_base": base - 5.0, "predicted_shrink": {effect: -0.96},
+                "interval": {effect: [-17.7, 13.9]},
                 "top": effect, "effects": [effect], "error_noise": 5.3}
 
     amp, leak = rec("rate.amplifier", 36.61, 37.56), rec("slow.leakage", 10.0, 10.0)
