@@ -11,7 +11,9 @@ the excitation-matched twin (the same device and noise without the effect, drive
 amplifier applied: ``selfsense.gap.blind.matched_twin_error``), what a perfect amplifier model could reach; and,
 beside it, Table 3 of the case's own log with the command channel showing the applied voltage (``V = V_c - V_s`` with
 the simulator truth's ``V_c``; the charge and the shunt signal as measured): the same question asked of the case's
-data instead of a twin's.
+data instead of a twin's. Beside them: the member's rebuilt voltage against the simulator's, the H(q) form selected
+with the member and with the applied voltage, and what the limit took from the excitation (the applied voltage's span
+and the validation references' ranges against the effect-free twin's).
 """
 from __future__ import annotations
 
@@ -42,6 +44,24 @@ def check(seed: int, i: int) -> dict:
         row[f"cal_{mode}"] = calibration_error(est, tr, me)
         if mode == "auto":
             row["adopted"] = bool((est.amplifier_ or {}).get("applied"))
+            row["form_auto"] = (est.selected_form() or (("-", {}),))[-1][0]
+            # the member's rebuilt actuator voltage against the simulator's: RMS [V], the largest over the trials
+            row["rebuild_rms_v"] = max(float(np.sqrt(np.mean((est._with_voltage(df)["V"].to_numpy(float)
+                                                              - truth[t]["V"].to_numpy(float)) ** 2)))
+                                       for t, df in tr.items())
+    # what the limit took from the excitation: the applied voltage's span against the effect-free twin's (the voltage
+    # asked for), and the validation references' ranges against the twin's; the smallest ratio over the trials
+    tr0, me0, _, truth0 = simulate_family_case(c["family"], c["device_seed"], {}, c["noise_seed"], T_CASE, FS_CASE,
+                                               with_truth=True)
+    row["v_span_ratio"] = min(np.ptp(truth[t]["V"].to_numpy(float)) / np.ptp(truth0[t]["V"].to_numpy(float))
+                              for t in tr)
+    rng = []
+    for t, m in me.iterrows():
+        if m["role"] == "validation":
+            ref = "dx_ref" if m["reference"] == "displacement" else "f_ref"
+            rng.append(np.nanmax(tr[t][ref]) - np.nanmin(tr[t][ref]))
+            rng[-1] /= np.nanmax(tr0[t][ref]) - np.nanmin(tr0[t][ref])
+    row["range_ratio"] = float(min(rng))
     mk = lambda r: SelfSensingEstimator(config=SensingConfig(), rig=r)  # noqa: E731
     row["matched"] = matched_twin_error(c, mk, truth)
     # the case's own log with the command channel showing the applied voltage: V = V_c(applied) - V_s, the charge
@@ -52,7 +72,9 @@ def check(seed: int, i: int) -> dict:
         d["V_c"] = truth[t]["V_c"].to_numpy(float)
         d["V"] = d["V_c"] - d["V_s"]
         told[t] = d
-    row["told"] = float(_summary(tip_table(told, me, rig, mk))["mean"])
+    est_told = mk(rig).fit(told, me)
+    row["told"] = float(_summary(tip_table(told, me, rig, None, estimator=est_told))["mean"])
+    row["form_told"] = (est_told.selected_form() or (("-", {}),))[-1][0]
     return row
 
 
@@ -73,12 +95,15 @@ def main(argv=None) -> int:
           + " ".join(argv if argv is not None else sys.argv[1:]) + "`", "",
           f"Made {datetime.now(timezone.utc):%Y-%m-%d}. " + __doc__.split("\n\n", 2)[2].strip(), "",
           "| case | family | limit magnitude | adopted | Table 3 auto | Table 3 off | calibration trials auto | "
-          "calibration trials off | excitation-matched twin | case's log, applied voltage |",
-          "|---|---|---|---|---|---|---|---|---|---|"]
+          "calibration trials off | excitation-matched twin | case's log, applied voltage | rebuilt V, RMS error [V] "
+          "(largest trial) | H(q) form: auto / applied voltage | applied / asked voltage span (smallest trial) | "
+          "validation reference range / effect-free twin's (smallest trial) |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         md.append(f"| {r['case']} | {r['family']} | {r['magnitude']:.2f} | {'yes' if r['adopted'] else 'no'} | "
                   f"{f(r['table3_auto'])} | {f(r['table3_off'])} | {f(r['cal_auto'])} | {f(r['cal_off'])} | "
-                  f"{f(r['matched'])} | {f(r['told'])} |")
+                  f"{f(r['matched'])} | {f(r['told'])} | {f(r['rebuild_rms_v'])} | {r['form_auto']} / "
+                  f"{r['form_told']} | {f(r['v_span_ratio'])} | {f(r['range_ratio'])} |")
     worse = [r for r in rows if r["adopted"] and r["table3_auto"] > r["table3_off"]]
     caught = [r for r in worse if r["cal_auto"] > r["cal_off"]]
     md += ["", f"Adopted and Table 3 worse than with the member off: {len(worse)} of {len(rows)}; of those, the "
