@@ -32,7 +32,7 @@ def calibration_error(est, trials, meta) -> float:
             continue
         ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
         y = trials[t][ref].to_numpy(float)
-        yh = est.estimate(trials[t])[col].to_numpy(float)
+        yh = est.estimate(trials[t], trial=t)[col].to_numpy(float)
         ok = np.isfinite(y) & (trials[t]["relay"].to_numpy() < 0.5)
         cal.append(float(np.mean(np.abs(yh[ok] - y[ok])) * 100 / np.ptp(y[ok])))
     return float(np.mean(cal))
