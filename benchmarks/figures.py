@@ -102,6 +102,7 @@ DATES = {
     "tip_preload": "2026-11-27",
     "amplifier_blind": "2026-11-26",
     "absorption_blind": "2026-11-26",
+    "temperature_blind": "2026-12-05",
     "stress_blind": "2026-11-28",
     "absorption_null": "2026-11-26",
     "absorption_member": "2026-11-26",
@@ -270,6 +271,8 @@ COMMANDS = {
                     "--n 8 --jobs 2 --out benchmarks/gap_tip/stress_blind.md",
     "absorption_blind": "python benchmarks/member_ab.py --member absorption --effect slow.absorption --seed 31415 "
                         "--n 8 --jobs 2 --out benchmarks/gap_tip/absorption_blind.md",
+    "temperature_blind": "python benchmarks/member_ab.py --member temperature --effect slow.temperature --seed 20261215 "
+                         "--n 8 --jobs 2 --out benchmarks/gap_tip/temperature_blind.md",
     "absorption_member": "python benchmarks/tip_cases.py --seed 90210 --cases 4,14,21,45,49,50,73,83,91,97,103,105 "
                          "--jobs 2 --campaign benchmarks/gap_tip/seed_90210/tip_cases.jsonl.gz "
                          "--out benchmarks/gap_tip/absorption_member_90210.md",
@@ -903,6 +906,21 @@ def gap_figures() -> list[Fig]:
                            f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                            f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", absrc,
                            COMMANDS["absorption_blind"], DATES["absorption_blind"]))
+    tsrc = "benchmarks/gap_tip/temperature_blind.jsonl.gz"
+    if (ROOT / tsrc).exists():
+        tb = [json.loads(x) for x in gzip.open(ROOT / tsrc, "rt")]
+        ad = [r for r in tb if r["adopted"]]
+        better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
+        out.append(Fig(f"temperature member of the charge link (off by default) at first contact: the first {len(tb)} "
+                       "slow.temperature tip cases of a seed not used in its development, the member decided by the "
+                       "data; adopted; where adopted, Table 3 lower than with the member off; median Table 3 member "
+                       "off -> auto (effect-free twins); adopted on the effect-free twins",
+                       f"{len(ad)} of {len(tb)}; {better} of {len(ad)}; "
+                       + (f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
+                          f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
+                          f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
+                       + f"; {sum(bool(r['adopted_twin']) for r in tb)} of {len(tb)}", "", "measured", tsrc,
+                       COMMANDS["temperature_blind"], DATES["temperature_blind"]))
     ssrc = "benchmarks/gap_tip/stress_blind.jsonl.gz"
     if (ROOT / ssrc).exists():
         sb = [json.loads(x) for x in gzip.open(ROOT / ssrc, "rt")]
