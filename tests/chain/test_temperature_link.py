@@ -157,4 +157,5 @@ def test_model_round_trip_and_stream_carry_the_member(clean, drifted_fits):
             assert np.max(np.abs(out[col] - batch[col].to_numpy())) < 1e-9 * rng, (t, col)
         assert np.max(np.abs(plain["f_raw"].to_numpy() - batch["f_raw"].to_numpy())) > 1e-6 * float(
             np.ptp(batch["f_raw"]))
-    assert SelfSensingStream(auto, dt=1.0 / FS_CASE).temperature_scale == 1.0
+    with pytest.warns(UserWarning, match="temperature member and no trial was named"):
+        assert SelfSensingStream(auto, dt=1.0 / FS_CASE).temperature_scale == 1.0

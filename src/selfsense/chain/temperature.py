@@ -25,8 +25,8 @@ without the tip offsets: 0.25 against a true 0.5 per mille per trial). The whole
 again on the corrected charges and the anchors' slope measured again; with the residual slope ``d(b)`` linear in ``b`` a secant step gives the ``b`` at which the
 recalibrated chain's anchors show no trend, and the estimator is calibrated a third time there.
 
-**Support** (``auto``): the slope must be identified (a free or blocked trial measured later than a calibration trial
-of the same tip state) and the scale change it implies over the campaign, ``|b| (k_max - k_min)``, at least
+**Support** (``auto``): the slope must be identified (free- or blocked-tip trials of one tip state at two positions of
+trials.csv, validation trials included) and the scale change it implies over the campaign, ``|b| (k_max - k_min)``, at least
 :data:`MIN_CAMPAIGN_CHANGE`. Measured on 12 effect-free devices of the four truth families (the gap diagnostic's tip
 protocol, campaign seed 777): 0 to 6.7e-4, and the member adopted at 3e-4 made Table 3 better on 3 of the 6 it was
 adopted on and worse on 3 (by up to 2.1 points); eleven
@@ -58,15 +58,16 @@ MAX_SECANT_GAIN = 4.0
 
 def anchor_scale(cost, steps=SCALE_STEPS) -> tuple[float, float]:
     """``(s, gain)``: the charge scale that minimises ``cost(s)`` (a parabola through ``cost`` at ``1 + steps``;
-    1.0 where the parabola has no minimum) and the cost at 1 over the parabola's minimum (>= 1)."""
+    1.0 where the parabola has no minimum) and the parabola at 1 over its minimum (>= 1; inf where the parabola's
+    minimum is not positive)."""
     x = np.asarray(steps, float)
     c = np.array([float(cost(1.0 + d)) for d in x])
     p = np.polyfit(x, c, 2)
     if not (np.isfinite(p).all() and p[0] > 0):
         return 1.0, 1.0
     d = float(np.clip(-p[1] / (2 * p[0]), 2 * x.min(), 2 * x.max()))
-    at_one = float(c[list(x).index(0.0)]) if 0.0 in x else float(np.polyval(p, 0.0))
-    return 1.0 + d, at_one / max(float(np.polyval(p, d)), 1e-300)
+    at_one, at_min = float(np.polyval(p, 0.0)), float(np.polyval(p, d))
+    return 1.0 + d, (at_one / at_min if at_min > 0 else float("inf")) if at_one > 0 else 1.0
 
 
 def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
@@ -85,16 +86,15 @@ def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
 
 def secant_slope(b0: float, b1: float, d1: float) -> float:
     """The slope at which the anchors' residual trend vanishes: ``d(0) = b0`` (the first fit's trend), ``d(b1) = d1``
-    (the trend after a recalibration with ``b1``), ``d`` linear in ``b``. Kept between ``b1`` (and ``b1 + d1``) and
-    :data:`MAX_SECANT_GAIN` ``b1``; where the trend did not fall, the fixed-point step ``b1 + d1``."""
+    (the trend after a recalibration with ``b1``), ``d`` linear in ``b``; where the trend did not fall, the
+    fixed-point step ``b1 + d1``. Either is kept between ``b1`` and :data:`MAX_SECANT_GAIN` ``b1``."""
     if b1 == 0.0:
         return 0.0
     g = (b0 - d1) / b1          # d(b) = b0 - g b
-    if not (np.isfinite(g) and g > 0.05):
-        return b1 + d1
-    b = b0 / g
     lo, hi = sorted((b1, MAX_SECANT_GAIN * b1))
-    return float(np.clip(b, lo, hi))
+    if not (np.isfinite(g) and g > 0.05):
+        return float(np.clip(b1 + d1, lo, hi))
+    return float(np.clip(b0 / g, lo, hi))
 
 
 def campaign_scales(names, b: float, k_c: float) -> dict[str, float]:

@@ -234,6 +234,9 @@ def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset, trial:
     raw["laser"] = np.nan
     raw["load_cell"] = np.nan
     sig = prepare_trial(sio.to_si(raw, rig, None), rig, offset=offset)
+    if trial is None and (est.temperature_ or {}).get("applied"):
+        print(f"selfsense estimate: {model} carries the temperature member and no --trial was given: the charge is "
+              "taken at the calibration's scale", file=sys.stderr)
     res = est.estimate(sig, trial=trial)
     names = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
     frame = pd.DataFrame({c: res[c].to_numpy() if c in res else sig[c].to_numpy() for c in names})

@@ -1886,7 +1886,7 @@ class SelfSensingEstimator:
         (the temperature member forced off inside), and those trials."""
         corrected = {t: _with_column(df, "q", df["q"].to_numpy(dtype=float) / float(scales.get(t, 1.0)))
                      for t, df in trials.items()}
-        est = SelfSensingEstimator(config=self.config, rig=self.rig,
+        est = type(self)(config=self.config, rig=self.rig,
                                    members={**dict(self.members or {}), "temperature": "off"},
                                    h_candidates=self.h_candidates, h_selection_cv=self.h_selection_cv,
                                    h_selection_prune=self.h_selection_prune,
@@ -1917,7 +1917,12 @@ class SelfSensingEstimator:
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
         names = [str(t) for t in meta.index]
         k_c = tm.calibration_position(meta)
-        anchors = self._temperature_anchors(trials, meta)
+        try:
+            anchors = self._temperature_anchors(trials, meta)
+        except Exception as exc:   # noqa: BLE001 -- evidence that cannot be read leaves the chain without the member
+            info["note"] = f"temperature member not applied: the anchors could not be read ({type(exc).__name__}: {exc})"
+            self.fit_report_.setdefault("warnings", []).append(info["note"])
+            return self
         b0, why = tm.anchor_trend(anchors, k_c)
         info.update({"k_c": k_c, "anchors_first": anchors, "slope_first_per_trial": b0})
         if b0 is None:
@@ -1935,9 +1940,10 @@ class SelfSensingEstimator:
         try:
             est1, corr1 = self._temperature_refit(trials, meta, tm.campaign_scales(names, b0, k_c))
             d1, _ = tm.anchor_trend(est1._temperature_anchors(corr1, meta), k_c)
+            del est1, corr1   # memory: one recalibrated copy of the trials at a time
             b = tm.secant_slope(b0, b0, 0.0 if d1 is None else d1)
             scales = tm.campaign_scales(names, b, k_c)
-            est, corr = self._temperature_refit(trials, meta, scales)
+            est, _ = self._temperature_refit(trials, meta, scales)
         except Exception as exc:   # noqa: BLE001 -- a failed recalibration leaves the chain without the member
             info["note"] = f"temperature member not applied: the recalibration failed ({type(exc).__name__}: {exc})"
             self.fit_report_.setdefault("warnings", []).append(info["note"])

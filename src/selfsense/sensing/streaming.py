@@ -844,6 +844,12 @@ class SelfSensingStream:
         # or the trial is not in the fitted campaign), as SelfSensingEstimator.estimate(df, trial=...)
         self.temperature_scale = float(estimator.temperature_scale(trial)) if hasattr(estimator, "temperature_scale") \
             else 1.0
+        if trial is None and (getattr(estimator, "temperature_", None) or {}).get("applied"):
+            import warnings
+
+            warnings.warn("SelfSensingStream: the model carries the temperature member and no trial was named: the "
+                          "charge is taken at the calibration's scale (pass trial= a trial of the fitted trials.csv)",
+                          stacklevel=2)
         self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
