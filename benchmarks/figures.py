@@ -49,6 +49,7 @@ DATES = {
     "stress_wide_20261206": "2026-12-02",
     "stress_solve_20261206": "2026-12-03",
     "stress_first_20261208": "2026-12-03",
+    "temperature_tip_20261215": "2026-12-05",
     "creep_member_8080": "2026-12-03",
     "creep_member_first_20261209": "2026-12-03",
     "creep_member_built_first_20261210": "2026-12-03",
@@ -102,6 +103,7 @@ DATES = {
     "tip_preload": "2026-11-27",
     "amplifier_blind": "2026-11-26",
     "absorption_blind": "2026-11-26",
+    "temperature_blind": "2026-12-05",
     "stress_blind": "2026-11-28",
     "absorption_null": "2026-11-26",
     "absorption_member": "2026-11-26",
@@ -174,6 +176,8 @@ COMMANDS = {
                                    "--out benchmarks/gap_tip/creep_member_first_20261209.md",
     "stress_first_20261208": "python benchmarks/tip_cases.py --seed 20261208 --cases 39,40,43,64,65,66,86,91,106,132 "
                              "--jobs 2 --campaign none --out benchmarks/gap_tip/stress_first_20261208.md",
+    "temperature_tip_20261215": "python benchmarks/tip_cases.py --seed 20261215 --cases 0,3,14,25,27,30,53,59 "
+                                "--jobs 2 --campaign none --out benchmarks/gap_tip/temperature_tip_20261215.md",
     "gap_tip": "selfsense gap blind --tip --n 80 --seed 4711 --jobs 2 --out benchmarks/gap_tip",
     # the tip tier after the simulator's stress fix, with a carried chain member scored by its own contribution
     "gap_tip_90210": "selfsense gap blind --tip --n 120 --seed 90210 --jobs 2 --out benchmarks/gap_tip/seed_90210",
@@ -270,6 +274,8 @@ COMMANDS = {
                     "--n 8 --jobs 2 --out benchmarks/gap_tip/stress_blind.md",
     "absorption_blind": "python benchmarks/member_ab.py --member absorption --effect slow.absorption --seed 31415 "
                         "--n 8 --jobs 2 --out benchmarks/gap_tip/absorption_blind.md",
+    "temperature_blind": "python benchmarks/member_ab.py --member temperature --effect slow.temperature --seed 20261215 "
+                         "--n 8 --jobs 2 --out benchmarks/gap_tip/temperature_blind.md",
     "absorption_member": "python benchmarks/tip_cases.py --seed 90210 --cases 4,14,21,45,49,50,73,83,91,97,103,105 "
                          "--jobs 2 --campaign benchmarks/gap_tip/seed_90210/tip_cases.jsonl.gz "
                          "--out benchmarks/gap_tip/absorption_member_90210.md",
@@ -903,6 +909,21 @@ def gap_figures() -> list[Fig]:
                            f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                            f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", absrc,
                            COMMANDS["absorption_blind"], DATES["absorption_blind"]))
+    tsrc = "benchmarks/gap_tip/temperature_blind.jsonl.gz"
+    if (ROOT / tsrc).exists():
+        tb = [json.loads(x) for x in gzip.open(ROOT / tsrc, "rt")]
+        ad = [r for r in tb if r["adopted"]]
+        better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
+        out.append(Fig(f"temperature member of the charge link (off by default) at first contact: the first {len(tb)} "
+                       "slow.temperature tip cases of a seed not used in its development, the member decided by the "
+                       "data; adopted; where adopted, Table 3 lower than with the member off; median Table 3 member "
+                       "off -> auto (effect-free twins); adopted on the effect-free twins",
+                       f"{len(ad)} of {len(tb)}; {better} of {len(ad)}; "
+                       + (f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
+                          f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
+                          f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
+                       + f"; {sum(bool(r['adopted_twin']) for r in tb)} of {len(tb)}", "", "measured", tsrc,
+                       COMMANDS["temperature_blind"], DATES["temperature_blind"]))
     ssrc = "benchmarks/gap_tip/stress_blind.jsonl.gz"
     if (ROOT / ssrc).exists():
         sb = [json.loads(x) for x in gzip.open(ROOT / ssrc, "rt")]
@@ -918,21 +939,24 @@ def gap_figures() -> list[Fig]:
                           f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
                        + f"; {sum(bool(r['adopted_twin']) for r in sb)} of {len(sb)}", "", "measured", ssrc,
                        COMMANDS["stress_blind"], DATES["stress_blind"]))
-    for key, what in (("stress_first_20261206", "the stress member forced on identified with the H(q) selection "
-                       "(first contact: 8 load.stress_hysteresis tip cases of a seed not used before)"),
-                      ("stress_wide_20261206", "the same seed's costly case the narrow blocked form left unnamed, "
-                       "with the wider form (first contact of the form)"),
-                      ("stress_solve_20261206", "the same 8 cases with the member's load solved with a ridge chosen "
-                       "on the calibration trials (development cases of the solve)"),
-                      ("stress_first_20261208", "the ridge load solve at first contact (the first 10 "
-                       "load.stress_hysteresis tip cases of a seed not used before)")):
+    stress = "load.stress_hysteresis"
+    for key, what, e in (("stress_first_20261206", "the stress member forced on identified with the H(q) selection "
+                          "(first contact: 8 load.stress_hysteresis tip cases of a seed not used before)", stress),
+                         ("stress_wide_20261206", "the same seed's costly case the narrow blocked form left unnamed, "
+                          "with the wider form (first contact of the form)", stress),
+                         ("stress_solve_20261206", "the same 8 cases with the member's load solved with a ridge "
+                          "chosen on the calibration trials (development cases of the solve)", stress),
+                         ("stress_first_20261208", "the ridge load solve at first contact (the first 10 "
+                          "load.stress_hysteresis tip cases of a seed not used before)", stress),
+                         ("temperature_tip_20261215", "slow.temperature with the estimator's temperature member forced "
+                          "on for how far it shrinks (first contact: the first 8 slow.temperature tip cases of a seed "
+                          "not used before)", "slow.temperature")):
         src_ = f"benchmarks/gap_tip/{key}.jsonl.gz"
         if not (ROOT / src_).exists():
             continue
         from selfsense.gap.blind import COST_POINTS, _truth
 
         rs = [json.loads(x) for x in gzip.open(ROOT / src_, "rt")]
-        e = "load.stress_hysteresis"
         costly = [r for r in rs if r["true_shrink"] >= COST_POINTS]
         named = [r for r in rs if r["top"] == e and e in r["predicted_shrink"]]
         errs = [abs(r["predicted_shrink"][e] - _truth(r, e)) / abs(_truth(r, e)) for r in named if _truth(r, e)]

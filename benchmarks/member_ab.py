@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """A chain member's first contact on tip cases of a seed not used in its development: Table 3 with the default
-estimator (the member decided by the data, ``auto``) against the same estimator with the member forced off, and the
+estimator (the member decided by the data, ``auto``, its configuration key set to ``auto`` where it has one) against the same estimator with the member forced off, and the
 case's effect-free twin (same device, drive and noise, the effect removed).
 
     python benchmarks/member_ab.py --member amplifier --effect rate.amplifier --seed 20261126 --n 8 --jobs 2 \\
@@ -32,10 +32,21 @@ def calibration_error(est, trials, meta) -> float:
             continue
         ref, col = ("dx_ref", "dx_hat") if m["reference"] == "displacement" else ("f_ref", "f_hat")
         y = trials[t][ref].to_numpy(float)
-        yh = est.estimate(trials[t])[col].to_numpy(float)
+        yh = est.estimate(trials[t], trial=t)[col].to_numpy(float)
         ok = np.isfinite(y) & (trials[t]["relay"].to_numpy() < 0.5)
         cal.append(float(np.mean(np.abs(yh[ok] - y[ok])) * 100 / np.ptp(y[ok])))
     return float(np.mean(cal))
+
+
+def _config(member: str):
+    """The default configuration with the member's own key at "auto" (a member off by default, such as the stress or
+    the temperature member, is otherwise never decided by the data)."""
+    import dataclasses
+
+    from selfsense.sensing.estimator import SensingConfig
+
+    keys = {f.name for f in dataclasses.fields(SensingConfig)}
+    return SensingConfig(**({member: "auto"} if member in keys else {}))
 
 
 def _one(args):
@@ -43,7 +54,7 @@ def _one(args):
 
     from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case, simulate_family_case
     from selfsense.gap.counterfactual import _summary, tip_table
-    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+    from selfsense.sensing.estimator import SelfSensingEstimator
 
     i, seed, member = args
     c = draw_tip_case(i, seed)
@@ -52,8 +63,9 @@ def _one(args):
     tr0, me0, rig0 = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE)
     out = {"case": int(i), "seed": int(seed), "family": fam, "effect": next(iter(eff)),
            "magnitude": float(next(iter(eff.values())))}
+    cfg = _config(member)
     for mode in ("auto", "off"):
-        est = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={member: mode}).fit(tr, me)
+        est = SelfSensingEstimator(config=cfg, rig=rig, members={member: mode}).fit(tr, me)
         out[f"table3_{mode}"] = _summary(tip_table(tr, me, rig, None, estimator=est))["mean"]
         if mode == "auto":
             dec = getattr(est, f"{member}_", None)
@@ -61,12 +73,12 @@ def _one(args):
         out[f"calibration_{mode}"] = calibration_error(est, tr, me)
     # the twin with the member decided by the data too (a member that is off by default would never be adopted on
     # it otherwise); where it is adopted there (a false adoption), the twin's Table 3 is the one with the member off
-    est0 = SelfSensingEstimator(config=SensingConfig(), rig=rig0, members={member: "auto"}).fit(tr0, me0)
+    est0 = SelfSensingEstimator(config=cfg, rig=rig0, members={member: "auto"}).fit(tr0, me0)
     dec0 = getattr(est0, f"{member}_", None)
     out["adopted_twin"] = bool(dec0.get("applied")) if isinstance(dec0, dict) else None  # a false adoption
     if out["adopted_twin"]:
         out["table3_twin_auto"] = _summary(tip_table(tr0, me0, rig0, None, estimator=est0))["mean"]
-        est0 = SelfSensingEstimator(config=SensingConfig(), rig=rig0, members={member: "off"}).fit(tr0, me0)
+        est0 = SelfSensingEstimator(config=cfg, rig=rig0, members={member: "off"}).fit(tr0, me0)
     out["table3_twin"] = _summary(tip_table(tr0, me0, rig0, None, estimator=est0))["mean"]
     return out
 

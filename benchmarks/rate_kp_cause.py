@@ -72,7 +72,7 @@ def _grids(seed: int) -> list:
             sec = time.perf_counter() - t0
             ests = {}
             for t, s in sigs.items():
-                e = est.estimate(s)
+                e = est.estimate(s, trial=t)
                 e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
                 ests[t] = e
             t3 = tables.table3(tables.per_trial_table(ests, meta.reset_index())).set_index("measurement")

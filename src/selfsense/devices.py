@@ -114,7 +114,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         return rec
     ests = {}
     for t, s in sigs.items():
-        e = est.estimate(s)
+        e = est.estimate(s, trial=t)
         e["dx_ref"], e["f_ref"] = s["dx_ref"].to_numpy(), s["f_ref"].to_numpy()
         ests[t] = e
     pt = tables.per_trial_table(ests, meta.reset_index())

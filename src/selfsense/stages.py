@@ -193,7 +193,7 @@ def estimate(dataset_dir: str | Path, signal_path: str | Path, model_json: str |
         return None
     est = load_estimator(dataset_dir, model_json)
     sig = pd.read_parquet(signal_path, columns=_ESTIMATE_INPUTS)
-    out = est.estimate(sig)
+    out = est.estimate(sig, trial=Path(signal_path).stem)
     out["dx_ref"] = sig["dx_ref"].to_numpy()
     out["f_ref"] = sig["f_ref"].to_numpy()
     del sig  # memory: the trial is held once at a time (sample budget, benchmarks/MEMORY.md)
@@ -299,7 +299,7 @@ def compare_modes(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path
                 if c == reused and t in (estimate_paths or {}):
                     e = pd.read_parquet(estimate_paths[t], columns=["dx_hat", "f_hat"])
                 else:
-                    e = ests[c].estimate(s)
+                    e = ests[c].estimate(s, trial=t)
                 e = pd.DataFrame({"dx_hat": e["dx_hat"].to_numpy(), "f_hat": e["f_hat"].to_numpy(),
                                   "dx_ref": s["dx_ref"].to_numpy(), "f_ref": s["f_ref"].to_numpy()})
                 pts[c].append(tables.per_trial_table({t: e}, meta.reset_index()))

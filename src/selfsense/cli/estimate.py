@@ -42,6 +42,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="a model with the offset-drift member: estimate it in batch, exactly the pipeline (default; "
                         "the whole log in memory), or stream it with the drift fitted on the rest segments seen so "
                         "far (causal; memory bounded)")
+    p.add_argument("--trial", default=None,
+                   help="the log's trial name in the trials.csv the model was fitted with: a model with the "
+                        "temperature member divides the charge by that trial's campaign scale (default: the "
+                        "calibration's scale, 1)")
     p.add_argument("--offset", default="relay",
                    help="in-amp offset of V_s: 'relay' (mean over the first shorted segment, default) or volts")
     return p
@@ -131,8 +135,9 @@ def _log_chunks(log: str | Path, rig, chunk: int):
 
 def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: str | Path,
                  chunk: int = 1_000_000, full: bool = False, offset: str | float = "relay",
-                 progress: bool | None = None, drift: str = "batch") -> int:
-    """Stream ``log`` through the fitted model into ``out`` chunk by chunk; returns the number of samples."""
+                 progress: bool | None = None, drift: str = "batch", trial: str | None = None) -> int:
+    """Stream ``log`` through the fitted model into ``out`` chunk by chunk; returns the number of samples. ``trial``:
+    the log's name in the fitted trials.csv (the temperature member's campaign scale; None: 1)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     from tqdm import tqdm
@@ -148,7 +153,7 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
     if drift not in ("batch", "causal"):
         raise ValueError(f"--drift must be 'batch' or 'causal', got {drift!r}")
     if not streamable(model) and drift == "batch":
-        return _estimate_batch(model, rig, log, out, chunk, full, offset)
+        return _estimate_batch(model, rig, log, out, chunk, full, offset, trial)
     n_total, has_relay, chunks = _log_chunks(log, rig, chunk)
     if not has_relay and offset == "relay":
         raise ValueError(f"{log}: no relay column, so the in-amp offset cannot be estimated; pass --offset VOLTS")
@@ -159,7 +164,7 @@ def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: s
         dt = float(np.median(np.diff(first["t"])))
         dt = dt if dt > 0 else None
     stream = SelfSensingStream.from_json(model, rig, offset=offset, dt=dt,
-                                         drift="causal" if drift == "causal" else "refuse")
+                                         drift="causal" if drift == "causal" else "refuse", trial=trial)
     chunks = _chain(first, chunks)
 
     out_cols = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
@@ -201,7 +206,7 @@ def streamable(model: str | Path) -> bool:
     return not d.get("offset_drift")
 
 
-def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset) -> int:
+def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset, trial: str | None = None) -> int:
     """Whole-log estimation for models the stream does not run (the offset-drift member: the rest-segment drift
     estimate needs the whole trial): the log is read in chunks, concatenated,
     converted as the pipeline does (selfsense.io.to_si, selfsense.signals.prepare_trial) and estimated with
@@ -229,7 +234,10 @@ def _estimate_batch(model, rig, log, out, chunk: int, full: bool, offset) -> int
     raw["laser"] = np.nan
     raw["load_cell"] = np.nan
     sig = prepare_trial(sio.to_si(raw, rig, None), rig, offset=offset)
-    res = est.estimate(sig)
+    if trial is None and (est.temperature_ or {}).get("applied"):
+        print(f"selfsense estimate: {model} carries the temperature member and no --trial was given: the charge is "
+              "taken at the calibration's scale", file=sys.stderr)
+    res = est.estimate(sig, trial=trial)
     names = ["t", "dx_hat", "f_hat"] + (list(_AUX) if full else [])
     frame = pd.DataFrame({c: res[c].to_numpy() if c in res else sig[c].to_numpy() for c in names})
     sio.write_parquet_atomic(frame, out)
@@ -250,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     # StreamError, ContractError, missing files, bad columns: one line per problem and exit 2 (selfsense.cli)
     n = estimate_log(args.model, args.dataset, args.log, args.out, chunk=args.chunk, full=args.full, offset=offset,
-                     drift=args.drift)
+                     drift=args.drift, trial=args.trial)
     print(f"selfsense estimate: {n} samples -> {args.out}", file=sys.stderr)
     return 0
 

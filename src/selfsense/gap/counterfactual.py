@@ -48,7 +48,8 @@ __all__ = ["CORRECTION_KIND", "CHAIN_MEMBERS", "corrections", "tip_table", "coun
 
 #: effect -> the estimator's charge-link member that carries it (``SelfSensingEstimator.members``)
 CHAIN_MEMBERS = {"slow.leakage": "leakage", "slow.offset_drift": "offset_drift", "rate.amplifier": "amplifier",
-                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress", "slow.creep": "tip_creep"}
+                 "slow.absorption": "absorption", "load.stress_hysteresis": "stress", "slow.creep": "tip_creep",
+                 "slow.temperature": "temperature"}
 
 CORRECTION_KIND = {
     "slow.leakage": "charge_mech", "slow.offset_drift": "charge_mech", "slow.absorption": "charge_mech",
@@ -199,7 +200,8 @@ def adopted_members(fitted) -> dict:
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
             "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),
-            "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False))}
+            "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False)),
+            "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):
@@ -239,7 +241,7 @@ def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, o
         if key is not None and key in seen:
             yh = seen[key]
         else:
-            yh = est.estimate(df)[col].to_numpy(float)
+            yh = _estimate(est, df, t)[col].to_numpy(float)
             if key is not None:
                 yh.flags.writeable = False
                 seen[key] = yh
@@ -252,6 +254,13 @@ def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, o
         rows[t] = {"measurement": meas, "error": float(np.mean(err)),
                    "blocks": [float(np.mean(b)) for b in np.array_split(err, N_BLOCKS)]}
     return rows
+
+
+def _estimate(est, df, trial):
+    """``est.estimate`` of a trial, with its name where the estimator takes one (the chain's temperature member)."""
+    import inspect
+
+    return est.estimate(df, trial=trial) if "trial" in inspect.signature(est.estimate).parameters else est.estimate(df)
 
 
 def _summary(rows: dict) -> dict:

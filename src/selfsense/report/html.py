@@ -224,6 +224,13 @@ def _model_section(results_dir: Path) -> list[str]:
                  f"displacement calibration rows, docs/method.md 6h): "
                  f"{'carried' if tc.get('applied') else 'not applied'}, {html.escape(str(tc['note']))}"
                  + (f"; {html.escape(str(od['note']))}" if od.get("note") else ""))
+    tm = d.get("temperature") or {}
+    if tm.get("note"):
+        kind += (f"; charge scale drifting over the campaign (charge link, temperature; free- and blocked-tip trials' "
+                 f"reference-free relation, docs/method.md 6i): "
+                 + (f"carried, {tm.get('slope_per_trial', 0.0):.3g} per trial of trials.csv" if tm.get("applied")
+                    else "not applied")
+                 + f", {html.escape(str(tm['note']))}")
     mode = {"thesis": "free-tip target H(q) = V - q / (n_A C_p), thesis eq. (55)",
             "onsite": "on-site calibration, paper eq. (23)"}.get(str(cfg.get("h_mode")), str(cfg.get("h_mode")))
     ntr = "trial" if len(trials) == 1 else "trials"

@@ -60,7 +60,7 @@ DRIFT = ("auto", "off")
 #: the chain members ``SelfSensingEstimator(members=...)`` can force: charge link (leakage, offset drift, absorption,
 #: quantiser), H link (hold rows), voltage link (amplifier), load link (stress: :mod:`selfsense.chain.load`)
 CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser", "stress",
-                      "tip_creep")
+                      "tip_creep", "temperature")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
 #: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
 N_DRIFT_ALTERNATIONS = 1
@@ -110,6 +110,13 @@ class SensingConfig:
     #: bank of lags on Q and V_p at both tip outputs, "auto" where it lowers the displacement calibration rows'
     #: blocked-CV error by more than 10 %, "off" never
     tip_creep: str = "auto"
+    #: the charge link's temperature member (:mod:`selfsense.chain.temperature`): the charge scale drifting over the
+    #: campaign, "auto" where the free- and blocked-tip trials' reference-free relation shows a drift of at least
+    #: 8e-4 over the campaign, "off" never. Off by default: adopted on the bundled dataset (whose device warms by 1 K)
+    #: it lowers the free- and blocked-tip trials' error and raises the contact trials' (Table 3 2.05 / 3.62 % ->
+    #: 2.14 / 3.91 %), and its joint identification calibrates the chain twice more (docs/method.md 6i). The gap
+    #: diagnostic forces it on to predict how far a named temperature drift's gap shrinks
+    temperature: str = "off"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -138,6 +145,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.stress: expected 'auto' or 'off', found {self.stress!r}")
         if self.tip_creep not in ("auto", "off"):
             raise ValueError(f"SensingConfig.tip_creep: expected 'auto' or 'off', found {self.tip_creep!r}")
+        if self.temperature not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.temperature: expected 'auto' or 'off', found {self.temperature!r}")
         if self.offset_drift not in ("auto", "on", "off"):
             raise ValueError(f"SensingConfig.offset_drift: expected 'auto', 'on' or 'off', found {self.offset_drift!r}")
         if self.offset_drift == "on" and self.drift == "off":
@@ -162,7 +171,7 @@ class SensingConfig:
             raise ValueError(f"sensing config: unknown keys {unknown}; expected some of {sorted(known)}")
         if isinstance(cfg.get("offset_drift"), bool):   # YAML 1.1 reads an unquoted on / off as true / false
             cfg["offset_drift"] = "on" if cfg["offset_drift"] else "off"
-        for k in ("stress", "tip_creep"):
+        for k in ("stress", "tip_creep", "temperature"):
             if cfg.get(k) is False:   # an unquoted off
                 cfg[k] = "off"
         return cls(**cfg)
@@ -674,6 +683,9 @@ class SelfSensingEstimator:
     #: the load link's charge-free creep member (:mod:`selfsense.chain.creep`): the bank's lags and coefficients,
     #: whether applied
     tip_creep_: dict = field(default_factory=dict, init=False)
+    #: the charge link's temperature member (:mod:`selfsense.chain.temperature`): the campaign's charge-scale slope,
+    #: each trial's scale, whether applied
+    temperature_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -1050,7 +1062,8 @@ class SelfSensingEstimator:
         neither forces one."""
         return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto"),
                                            "stress": getattr(self.config, "stress", "off"),
-                                           "tip_creep": getattr(self.config, "tip_creep", "auto")})
+                                           "tip_creep": getattr(self.config, "tip_creep", "auto"),
+                                           "temperature": getattr(self.config, "temperature", "off")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -1680,6 +1693,13 @@ class SelfSensingEstimator:
         return _eval_h(self.hysteresis_, Q, _trial_dt(df))
 
     def fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
+        """Regress the sensing coefficients (:meth:`_fit_coefficients`), then decide the charge link's temperature
+        member (:meth:`_temperature_link`), which calibrates the whole chain again on the corrected charges where it
+        is adopted."""
+        self._fit_coefficients(trials, meta)
+        return self._temperature_link(trials, meta)
+
+    def _fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
         """Regress the sensing coefficients (thesis eq. 52, or eq. 46 with ``regression='full'``) on calibration
         trials only, with H(q) already calibrated (:meth:`fit_hysteresis`). Where the creep member is carried beside
         an offset-drift member adopted by the H(q) fit, H(q) is calibrated again without the drift to decide it
@@ -1836,6 +1856,107 @@ class SelfSensingEstimator:
         self.fit_report_["h_error_cost"] = self.h_error_cost()
         if any(self.stress_weights()):
             self._stress_load_ridge(cal_trials, cal)
+        return self
+
+    def _temperature_anchors(self, trials, meta) -> list[dict]:
+        """The reference-free charge scale of every free- and blocked-tip trial (:func:`selfsense.chain.temperature.
+        anchor_scale`): the scale of Q at which the output its tip state fixes (the force on a free tip, the
+        displacement on a blocked one, eq. 52 before post-processing) is closest to zero over the released samples."""
+        from selfsense.chain.temperature import anchor_scale, anchors_of
+
+        out = []
+        for k, t, tip in anchors_of(meta, trials):
+            df = trials[t]
+            rel = df["relay"].to_numpy() < 0.5
+            q = df["q"].to_numpy(dtype=float)
+
+            def cost(s, df=df, rel=rel, q=q, tip=tip):
+                d = self._with_links(_with_column(df, "q", q / s))
+                dx, f = self._predict_raw(self._regressors(d))
+                r = (f if tip == "free" else dx)[rel]
+                r = r[np.isfinite(r)]
+                return float(np.mean(r * r)) if len(r) else 0.0
+
+            s, gain = anchor_scale(cost)
+            out.append({"k": int(k), "trial": t, "tip": tip, "s": float(s), "gain": float(gain)})
+        return out
+
+    def _temperature_refit(self, trials, meta, scales: Mapping[str, float]) -> tuple["SelfSensingEstimator", dict]:
+        """The estimator of this configuration calibrated on the trials with their charges divided by ``scales``
+        (the temperature member forced off inside), and those trials."""
+        corrected = {t: _with_column(df, "q", df["q"].to_numpy(dtype=float) / float(scales.get(t, 1.0)))
+                     for t, df in trials.items()}
+        est = type(self)(config=self.config, rig=self.rig,
+                                   members={**dict(self.members or {}), "temperature": "off"},
+                                   h_candidates=self.h_candidates, h_selection_cv=self.h_selection_cv,
+                                   h_selection_prune=self.h_selection_prune,
+                                   leakage_search_any_gauge=self.leakage_search_any_gauge)
+        return est.fit(corrected, meta), corrected
+
+    def _temperature_link(self, trials, meta) -> "SelfSensingEstimator":
+        """The temperature member of the charge link (:mod:`selfsense.chain.temperature`): the charge scale
+        ``1 + b (k - k_c)`` of trial ``k`` of trials.csv, identified from the reference-free anchors of every free-
+        and blocked-tip trial jointly with H(q) and the coefficients (the chain calibrated again on the corrected
+        charges, a secant step on the anchors' residual trend, calibrated a third time there). ``auto`` adopts it
+        where the first trend implies a scale change of at least
+        :data:`~selfsense.chain.temperature.MIN_CAMPAIGN_CHANGE` over the campaign; "on" wherever the trend is
+        identified. Where adopted, the fitted state is that of the chain calibrated on the corrected charges."""
+        import dataclasses as dc
+
+        from selfsense.chain import temperature as tm
+
+        mode = self._member_modes()["temperature"]
+        if mode == "auto" and getattr(self.config, "temperature", "off") == "off":
+            mode = "off"
+        info: dict = {"mode": mode, "applied": False}
+        self.temperature_ = info
+        self.fit_report_["temperature"] = info
+        if mode == "off":
+            info["note"] = "temperature member off (config temperature: off or member forced off)"
+            return self
+        meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        names = [str(t) for t in meta.index]
+        k_c = tm.calibration_position(meta)
+        try:
+            anchors = self._temperature_anchors(trials, meta)
+        except Exception as exc:   # noqa: BLE001 -- evidence that cannot be read leaves the chain without the member
+            info["note"] = f"temperature member not applied: the anchors could not be read ({type(exc).__name__}: {exc})"
+            self.fit_report_.setdefault("warnings", []).append(info["note"])
+            return self
+        b0, why = tm.anchor_trend(anchors, k_c)
+        info.update({"k_c": k_c, "anchors_first": anchors, "slope_first_per_trial": b0})
+        if b0 is None:
+            info["note"] = f"temperature drift not identified: {why}"
+            return self
+        change = abs(b0) * max(len(names) - 1, 1)
+        info["campaign_change_first"] = change
+        if mode == "auto" and change < tm.MIN_CAMPAIGN_CHANGE:
+            info["note"] = (f"charge-scale drift over the campaign {change:.2g} < {tm.MIN_CAMPAIGN_CHANGE:g} in the "
+                            "free- and blocked-tip trials' reference-free relation: not applied")
+            return self
+        if b0 == 0.0:
+            info["note"] = "no charge-scale trend in the anchors: not applied"
+            return self
+        try:
+            est1, corr1 = self._temperature_refit(trials, meta, tm.campaign_scales(names, b0, k_c))
+            d1, _ = tm.anchor_trend(est1._temperature_anchors(corr1, meta), k_c)
+            del est1, corr1   # memory: one recalibrated copy of the trials at a time
+            b = tm.secant_slope(b0, b0, 0.0 if d1 is None else d1)
+            scales = tm.campaign_scales(names, b, k_c)
+            est, _ = self._temperature_refit(trials, meta, scales)
+        except Exception as exc:   # noqa: BLE001 -- a failed recalibration leaves the chain without the member
+            info["note"] = f"temperature member not applied: the recalibration failed ({type(exc).__name__}: {exc})"
+            self.fit_report_.setdefault("warnings", []).append(info["note"])
+            return self
+        for f in dc.fields(self):
+            if not f.init:
+                setattr(self, f.name, getattr(est, f.name))
+        info.update({"applied": True, "source": "forced" if mode == "on" else "free- and blocked-tip anchors",
+                     "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": abs(b) * max(
+                         len(names) - 1, 1), "scales": scales,
+                     "note": f"charge scale drifting by {b:.3g} per trial of trials.csv: applied"})
+        self.temperature_ = info
+        self.fit_report_["temperature"] = info
         return self
 
     def _coefficient_rows(self, cal_trials, cal, taus) -> CoefficientRows:
@@ -2129,9 +2250,20 @@ class SelfSensingEstimator:
             dx, f = dx + s, f + float(cr["kappa"]) * s
         return dx, f
 
+    def temperature_scale(self, trial: str | None) -> float:
+        """The temperature member's charge scale of ``trial`` (1.0 where not applied or the trial is not known)."""
+        tm = self.temperature_ or {}
+        if trial is None or not tm.get("applied"):
+            return 1.0
+        return float((tm.get("scales") or {}).get(str(trial), 1.0))
+
     # ------------------------------------------------------------------ estimation
-    def estimate(self, df: pd.DataFrame) -> pd.DataFrame:
+    def estimate(self, df: pd.DataFrame, trial: str | None = None) -> pd.DataFrame:
         """Estimate tip displacement and force for one prepared trial (thesis eq. 52 + Fig. 24 post-processing).
+
+        ``trial``: the trial's name in the trials.csv the estimator was fitted with; where the temperature member is
+        applied, its charge is divided by the trial's campaign scale (a trial not named there is estimated at the
+        calibration's scale, 1).
 
         Returns columns ``t, dx_hat, f_hat, dx_raw, f_raw, V_p, V_H, q`` (m, N, V, C). During the relay segment
         (leads shorted) the estimates are 0 by construction of the known initial state.
@@ -2139,6 +2271,9 @@ class SelfSensingEstimator:
         if self.hysteresis_ is None:
             raise RuntimeError("SelfSensingEstimator.estimate called before fit()")
         q_measured = df["q"].to_numpy(dtype=float)
+        s_t = self.temperature_scale(trial)
+        if s_t != 1.0:
+            df = _with_column(df, "q", q_measured / s_t)
         df = self._with_links(df)
         X = self._regressors(df)
         dx_raw, f_raw = self._predict_raw(X)
@@ -2195,6 +2330,7 @@ class SelfSensingEstimator:
             "quantiser": dict(self.quantiser_),
             "stress": dict(self.stress_),
             "tip_creep": dict(self.tip_creep_),
+            "temperature": dict(self.temperature_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -2222,5 +2358,6 @@ class SelfSensingEstimator:
         est.quantiser_ = dict(d.get("quantiser") or {})
         est.stress_ = dict(d.get("stress") or {})
         est.tip_creep_ = dict(d.get("tip_creep") or {})
+        est.temperature_ = dict(d.get("temperature") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

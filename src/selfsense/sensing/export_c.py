@@ -497,6 +497,11 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         raise ExportError("the model carries the amplifier member (the actuator voltage rebuilt where the HV amplifier "
                           "sits at its current limit, up to the sample where the limit lets go), which a controller has "
                           "not seen yet; refit with calibration: amplifier: off to export it")
+    if (getattr(est, "temperature_", None) or {}).get("applied"):
+        raise ExportError("the model carries the temperature member (a charge scale per trial of the fitted campaign, "
+                          "chain.temperature), which a controller running after the campaign cannot know; refit with "
+                          "calibration: temperature: off to export it, or stream it in Python with "
+                          "SelfSensingStream(..., trial=...)")
     if getattr(est, "offset_drift_", False):
         raise ExportError("the model carries the offset-drift member (offset_drift: true), fitted over the rest "
                           "segments of whole trials, which a controller has not seen yet; refit with calibration: "

@@ -70,7 +70,7 @@ __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "
 _NS_FRONT = 16
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- front parameters
-_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH = range(8)
+_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH, _F_TS = range(9)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 _NS_BACK = 2
@@ -168,6 +168,10 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         if st != _OK:
             return st, k
         qm_out[k] = q
+        ts = P[_F_TS]
+        if ts != 1.0:
+            # temperature member: the trial's campaign charge scale (chain.temperature), before the other members
+            q = q / ts
         cq = P[_F_CQ]
         if cq != 0.0:
             # quantiser member: Q - i_q int m dt, m = 1 on open samples off the short's code (the offset is known
@@ -763,6 +767,10 @@ class SelfSensingStream:
     drift : for a model with the offset-drift member: ``"refuse"`` (default; the batch estimate fits the drift over
         the whole trial, which a stream cannot reproduce) or ``"causal"`` (:class:`CausalOffsetDrift`: the same
         ramp fitted on the rest segments seen so far).
+    trial : the trial's name in the trials.csv the estimator was fitted with: where the temperature member
+        (:mod:`selfsense.chain.temperature`) is applied, the charge is divided by that trial's campaign scale, as in
+        ``estimate(df, trial=...)``; None (the default) or a trial not in the fitted campaign: the calibration's
+        scale, 1.
 
     ``step(u_cmd, v_shunt, relay=0, t=None) -> (dx_hat [m], f_hat [N])``;
     ``process(u_cmd, v_shunt, relay=None, t=None) -> (dx_hat, f_hat)`` arrays (``full=True``: a dict that also
@@ -771,7 +779,7 @@ class SelfSensingStream:
     """
 
     def __init__(self, estimator, rig: Any = None, *, dt: float | None = None, offset: str | float = "relay",
-                 drift: str = "refuse"):
+                 drift: str = "refuse", trial: str | None = None):
         if estimator.hysteresis_ is None or not estimator.coef_:
             raise ValueError("SelfSensingStream needs a fitted estimator (fit() or from_dict())")
         if (getattr(estimator, "amplifier_", None) or {}).get("applied"):
@@ -832,7 +840,17 @@ class SelfSensingStream:
             kappa_cr = float(cr["kappa"])
         qz = getattr(estimator, "quantiser_", None) or {}
         i_q, half_q = ((float(qz["i_q_a"]), float(qz["half_step_v"])) if qz.get("applied") else (0.0, 0.0))
-        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q])
+        # the temperature member (chain.temperature): the named trial's campaign charge scale (1 where not applied
+        # or the trial is not in the fitted campaign), as SelfSensingEstimator.estimate(df, trial=...)
+        self.temperature_scale = float(estimator.temperature_scale(trial)) if hasattr(estimator, "temperature_scale") \
+            else 1.0
+        if trial is None and (getattr(estimator, "temperature_", None) or {}).get("applied"):
+            import warnings
+
+            warnings.warn("SelfSensingStream: the model carries the temperature member and no trial was named: the "
+                          "charge is taken at the calibration's scale (pass trial= a trial of the fitted trials.csv)",
+                          stacklevel=2)
+        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
