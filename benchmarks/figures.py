@@ -909,36 +909,24 @@ def gap_figures() -> list[Fig]:
                            f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                            f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points", "", "measured", absrc,
                            COMMANDS["absorption_blind"], DATES["absorption_blind"]))
-    tsrc = "benchmarks/gap_tip/temperature_blind.jsonl.gz"
-    if (ROOT / tsrc).exists():
-        tb = [json.loads(x) for x in gzip.open(ROOT / tsrc, "rt")]
-        ad = [r for r in tb if r["adopted"]]
+    for key, member, effect in (("temperature_blind", "temperature member of the charge link", "slow.temperature"),
+                                ("stress_blind", "stress member of the load link", "load.stress_hysteresis")):
+        src_ = f"benchmarks/gap_tip/{key}.jsonl.gz"
+        if not (ROOT / src_).exists():
+            continue
+        rs = [json.loads(x) for x in gzip.open(ROOT / src_, "rt")]
+        ad = [r for r in rs if r["adopted"]]
         better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
-        out.append(Fig(f"temperature member of the charge link (off by default) at first contact: the first {len(tb)} "
-                       "slow.temperature tip cases of a seed not used in its development, the member decided by the "
-                       "data; adopted; where adopted, Table 3 lower than with the member off; median Table 3 member "
-                       "off -> auto (effect-free twins); adopted on the effect-free twins",
-                       f"{len(ad)} of {len(tb)}; {better} of {len(ad)}; "
+        out.append(Fig(f"{member} (off by default) at first contact: the first {len(rs)} {effect} tip cases of a seed "
+                       "not used in its development, the member decided by the data; adopted; where adopted, Table 3 "
+                       "lower than with the member off; median Table 3 member off -> auto (effect-free twins); "
+                       "adopted on the effect-free twins",
+                       f"{len(ad)} of {len(rs)}; {better} of {len(ad)}; "
                        + (f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
                           f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
                           f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
-                       + f"; {sum(bool(r['adopted_twin']) for r in tb)} of {len(tb)}", "", "measured", tsrc,
-                       COMMANDS["temperature_blind"], DATES["temperature_blind"]))
-    ssrc = "benchmarks/gap_tip/stress_blind.jsonl.gz"
-    if (ROOT / ssrc).exists():
-        sb = [json.loads(x) for x in gzip.open(ROOT / ssrc, "rt")]
-        ad = [r for r in sb if r["adopted"]]
-        better = sum(r["table3_auto"] < r["table3_off"] for r in ad)
-        out.append(Fig(f"stress member of the load link (off by default) at first contact: the first {len(sb)} "
-                       "load.stress_hysteresis tip cases of a seed not used in its development, the member decided by "
-                       "the data; adopted; where adopted, Table 3 lower than with the member off; median Table 3 "
-                       "member off -> auto (effect-free twins); adopted on the effect-free twins",
-                       f"{len(ad)} of {len(sb)}; {better} of {len(ad)}; "
-                       + (f"{statistics.median(r['table3_off'] for r in ad):.2f} -> "
-                          f"{statistics.median(r['table3_auto'] for r in ad):.2f} "
-                          f"({statistics.median(r['table3_twin'] for r in ad):.2f}) points" if ad else "-")
-                       + f"; {sum(bool(r['adopted_twin']) for r in sb)} of {len(sb)}", "", "measured", ssrc,
-                       COMMANDS["stress_blind"], DATES["stress_blind"]))
+                       + f"; {sum(bool(r['adopted_twin']) for r in rs)} of {len(rs)}", "", "measured", src_,
+                       COMMANDS[key], DATES[key]))
     stress = "load.stress_hysteresis"
     for key, what, e in (("stress_first_20261206", "the stress member forced on identified with the H(q) selection "
                           "(first contact: 8 load.stress_hysteresis tip cases of a seed not used before)", stress),
