@@ -192,3 +192,19 @@ def test_stream_command_names_the_trial(clean, drifted_fits, tmp_path):
     with pytest.warns(UserWarning, match="temperature member and no trial was named"):
         plain = run()
     assert np.max(np.abs(plain["f_hat"].to_numpy() - named["f_hat"].to_numpy())) > 1e-6 * float(np.ptp(batch["f_hat"]))
+
+
+def test_a_held_form_is_a_shortcut_the_adopted_refit_does_not_keep(clean, drifted_fits):
+    """A caller that holds the form selected without the member (the gap diagnostic's recalibrations,
+    ``compare_modes``: ``h_selection_cv`` off) gets the estimator the whole selection gives: the chain without the
+    member is the same model bit for bit, the trend refit holds that form in both, and the adopted refit selects
+    again on the corrected charges."""
+    _, me, rig = clean
+    dr, auto, off = drifted_fits
+    held = SelfSensingEstimator(config=SensingConfig(temperature="auto"), rig=rig, members={"temperature": "auto"},
+                                h_candidates=off.selected_form(), h_selection_cv=False).fit(dr, me)
+    assert held.temperature_["applied"] and auto.temperature_["applied"]
+    assert held.temperature_["slope_per_trial"] == auto.temperature_["slope_per_trial"]
+    assert held.coef_ == auto.coef_
+    sel = held.fit_report_["hysteresis"]["selection"]
+    assert len(sel) == len(auto.fit_report_["hysteresis"]["selection"]) > 2   # the whole selection, not the held pair
