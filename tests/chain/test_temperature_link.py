@@ -159,3 +159,52 @@ def test_model_round_trip_and_stream_carry_the_member(clean, drifted_fits):
             np.ptp(batch["f_raw"]))
     with pytest.warns(UserWarning, match="temperature member and no trial was named"):
         assert SelfSensingStream(auto, dt=1.0 / FS_CASE).temperature_scale == 1.0
+
+
+def test_stream_command_names_the_trial(clean, drifted_fits, tmp_path):
+    """``selfsense stream --trial NAME`` (its line path, ``stream_lines``) gives the batch estimate under that name,
+    line by line; without the name, the calibration's scale and the warning."""
+    import io
+    import json
+
+    from selfsense.cli.stream import stream_lines
+
+    tr, me, rig = clean
+    _, auto, _ = drifted_fits
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(auto.to_dict(), default=float))
+    t = "val_repeat"
+    df = tr[t].iloc[:1500]
+    v_shunt = df["V_s"].to_numpy() * float(rig.inamp_gain)
+    lines = ["t,u_cmd,v_shunt,relay\n"] + [f"{float(a)!r},{float(b)!r},{float(c)!r},{int(d)}\n" for a, b, c, d in zip(
+        df["t"].to_numpy(), df["u_cmd"].to_numpy(), v_shunt, df["relay"].to_numpy())]
+
+    def run(**kw):
+        out = io.StringIO()
+        assert stream_lines(model, rig, lines, out, dt=1.0 / FS_CASE, **kw) == len(df)
+        return pd.read_csv(io.StringIO(out.getvalue()))
+
+    named = run(trial=t)
+    batch = auto.estimate(df, trial=t)
+    for col in ("dx_hat", "f_hat"):
+        rng = float(np.ptp(batch[col])) or 1.0
+        assert np.max(np.abs(named[col].to_numpy() - batch[col].to_numpy())) < 1e-9 * rng, col
+    with pytest.warns(UserWarning, match="temperature member and no trial was named"):
+        plain = run()
+    assert np.max(np.abs(plain["f_hat"].to_numpy() - named["f_hat"].to_numpy())) > 1e-6 * float(np.ptp(batch["f_hat"]))
+
+
+def test_a_held_form_is_a_shortcut_the_adopted_refit_does_not_keep(clean, drifted_fits):
+    """A caller that holds the form selected without the member (the gap diagnostic's recalibrations,
+    ``compare_modes``: ``h_selection_cv`` off) gets the estimator the whole selection gives: the chain without the
+    member is the same model bit for bit, the trend refit holds that form in both, and the adopted refit selects
+    again on the corrected charges."""
+    _, me, rig = clean
+    dr, auto, off = drifted_fits
+    held = SelfSensingEstimator(config=SensingConfig(temperature="auto"), rig=rig, members={"temperature": "auto"},
+                                h_candidates=off.selected_form(), h_selection_cv=False).fit(dr, me)
+    assert held.temperature_["applied"] and auto.temperature_["applied"]
+    assert held.temperature_["slope_per_trial"] == auto.temperature_["slope_per_trial"]
+    assert held.coef_ == auto.coef_
+    sel = held.fit_report_["hysteresis"]["selection"]
+    assert len(sel) == len(auto.fit_report_["hysteresis"]["selection"]) > 2   # the whole selection, not the held pair

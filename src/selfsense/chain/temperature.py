@@ -23,7 +23,8 @@ blocked trials differ by the model error of their own relation): the slope is ``
 calibration trials absorb part of the drift, so the first slope is low (measured on a device warming by 13 K,
 without the tip offsets: 0.25 against a true 0.5 per mille per trial). The whole estimator is therefore calibrated
 again on the corrected charges and the anchors' slope measured again; with the residual slope ``d(b)`` linear in ``b`` a secant step gives the ``b`` at which the
-recalibrated chain's anchors show no trend, and the estimator is calibrated a third time there.
+recalibrated chain's anchors show no trend, and the estimator is calibrated a third time there (the second calibration
+refits the H(q) form selected without the member; the third selects again, docs/method.md 6i).
 
 **Support** (``auto``): the slope must be identified (free- or blocked-tip trials of one tip state at two positions of
 trials.csv, validation trials included) and the scale change it implies over the campaign, ``|b| (k_max - k_min)``, at least

@@ -12,7 +12,8 @@ samples. With ``--follow`` the input file is read on as it grows, until the comm
 Every model the pipeline fits streams (any H(q) model kind, the leakage and rest-offset members, sliding offset and
 limiting). A model with the offset-drift member (fitted over whole trials in batch) stops at once with an error
 naming it and the member, unless ``--drift causal`` asks for the drift fitted on the rest segments seen so far
-(:class:`selfsense.sensing.streaming.CausalOffsetDrift`). H's creep terms are discretised at ``--dt`` (default: the calibration's
+(:class:`selfsense.sensing.streaming.CausalOffsetDrift`). A model with the temperature member divides the charge by
+the campaign scale of the trial named with ``--trial``. H's creep terms are discretised at ``--dt`` (default: the calibration's
 sample time). A malformed line (a
 field that is not a number, a wrong field count, a relay other than 0/1, a time that does not increase) stops with
 its line number; what was written before it stays valid.
@@ -43,6 +44,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="sample period [s] for H's creep terms (default: the calibration's sample time)")
     p.add_argument("--offset", default="relay",
                    help="in-amp offset of V_s: 'relay' (mean over the first shorted segment, default) or volts")
+    p.add_argument("--trial", default=None,
+                   help="the log's trial name in the trials.csv the model was fitted with: a model with the "
+                        "temperature member divides the charge by that trial's campaign scale, as "
+                        "selfsense estimate --trial does (default: the calibration's scale, 1, with a warning)")
     return p
 
 
@@ -83,9 +88,10 @@ def _columns(header: str, rig, source: str) -> tuple[list[int], dict[str, float]
 
 
 def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<stdin>", dt: float | None = None,
-                 drift: str = "refuse") -> int:
+                 drift: str = "refuse", trial: str | None = None) -> int:
     """Estimate every CSV line of ``lines`` (the first is the header) and write ``t,dx_hat,f_hat`` to ``out`` as each
-    arrives; returns the number of samples."""
+    arrives; returns the number of samples. ``dataset``: the directory holding rig.yaml, or the rig itself;
+    ``trial``: the log's name in the fitted trials.csv (:class:`~selfsense.sensing.streaming.SelfSensingStream`)."""
     from selfsense import io as sio
     from selfsense.cli.estimate import streamable
     from selfsense.sensing.streaming import SelfSensingStream
@@ -95,9 +101,9 @@ def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<std
                          "over the rest segments of whole trials, which a stream has not seen yet; pass --drift causal "
                          "(the drift fitted on the rest segments seen so far), refit with calibration: drift: off, or "
                          "use selfsense estimate (batch) on the finished log")
-    rig = sio.load_rig(dataset)
+    rig = sio.load_rig(dataset) if isinstance(dataset, (str, Path)) else dataset
     off = offset if offset == "relay" else float(offset)
-    stream = SelfSensingStream.from_json(model, rig, offset=off, dt=dt, drift=drift)
+    stream = SelfSensingStream.from_json(model, rig, offset=off, dt=dt, drift=drift, trial=trial)
     it = iter(lines)
     header = next(it, None)
     if header is None:
@@ -134,14 +140,14 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError("--follow reads a file that is still being written: give it with --input FILE")
     if a.input == "-":
         return 0 if stream_lines(a.model, a.dataset, _lines(sys.stdin, False, a.poll), sys.stdout, a.offset,
-                                 dt=a.dt, drift=a.drift) >= 0 else 1
+                                 dt=a.dt, drift=a.drift, trial=a.trial) >= 0 else 1
     path = Path(a.input)
     if not path.is_file():
         raise FileNotFoundError(2, "No such file or directory", str(path))
     with open(path, newline="") as fh:
         try:
             stream_lines(a.model, a.dataset, _lines(fh, a.follow, a.poll), sys.stdout, a.offset, source=str(path),
-                         dt=a.dt, drift=a.drift)
+                         dt=a.dt, drift=a.drift, trial=a.trial)
         except KeyboardInterrupt:  # --follow ends with Ctrl-C: what was written is complete
             return 0
     return 0

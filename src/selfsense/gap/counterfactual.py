@@ -58,9 +58,12 @@ CORRECTION_KIND = {
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
     "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
     "load.stress_hysteresis@blocked_h": "voltage_blk"}
-#: chain members that enter no row of the H(q) fit (the tip's charge-free creep: columns of the sensing regression,
-#: identified after H(q)); a recalibration with one of them forced on keeps the held H(q) form (:func:`_make`)
-OUTSIDE_H_MEMBERS = frozenset({"tip_creep"})
+#: chain members that enter no row of the chain's H(q) calibration (the tip's charge-free creep: columns of the
+#: sensing regression, identified after H(q); the temperature member: decided after the sensing regression, its
+#: recalibrations on the corrected charges select H(q) again, ``SelfSensingEstimator._temperature_refit``); a
+#: recalibration with one of them forced on keeps the held H(q) form and shares the H(q) calibration of the same inputs
+#: without it (:func:`_make`)
+OUTSIDE_H_MEMBERS = frozenset({"tip_creep", "temperature"})
 N_BLOCKS = 6
 
 

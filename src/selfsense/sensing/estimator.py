@@ -1881,16 +1881,32 @@ class SelfSensingEstimator:
             out.append({"k": int(k), "trial": t, "tip": tip, "s": float(s), "gain": float(gain)})
         return out
 
-    def _temperature_refit(self, trials, meta, scales: Mapping[str, float]) -> tuple["SelfSensingEstimator", dict]:
+    def _temperature_refit(self, trials, meta, scales: Mapping[str, float],
+                           hold_form: bool = False) -> tuple["SelfSensingEstimator", dict]:
         """The estimator of this configuration calibrated on the trials with their charges divided by ``scales``
-        (the temperature member forced off inside), and those trials."""
+        (the temperature member forced off inside), and those trials. ``hold_form``: the H(q) form this chain
+        selected without the member (:meth:`selected_form`) is refitted without the blocked CV instead of selected
+        again -- for the refit that only measures the anchors' residual trend (the whole selection there cost a third
+        of the member's time and moved the slope by under 1 %); the refit whose state the member adopts runs the
+        whole selection on the corrected charges (holding the form there too gave 4.71 % instead of 3.82 % on
+        development case 50 of tip seed 20261214). A form a caller held for the chain without the member (``h_selection_cv``
+        off: the gap diagnostic's recalibrations, ``compare_modes``) is a shortcut for that chain, not a choice for the
+        corrected charges: the adopted refit then runs the configured selection (``h_candidates`` empty), as the
+        pipeline's own fit with the member does."""
         corrected = {t: _with_column(df, "q", df["q"].to_numpy(dtype=float) / float(scales.get(t, 1.0)))
                      for t, df in trials.items()}
+        form = self.selected_form() if hold_form else ()
+        if form:                       # the trend refit: the form selected without the member, no CV
+            cands, cv = form, False
+        elif self.h_selection_cv:      # the configured (or the caller's) candidates, selected by the blocked CV
+            cands, cv = self.h_candidates, True
+        else:                          # a form the caller held for the chain without the member: the configured selection
+            cands, cv = (), True
         est = type(self)(config=self.config, rig=self.rig,
-                                   members={**dict(self.members or {}), "temperature": "off"},
-                                   h_candidates=self.h_candidates, h_selection_cv=self.h_selection_cv,
-                                   h_selection_prune=self.h_selection_prune,
-                                   leakage_search_any_gauge=self.leakage_search_any_gauge)
+                         members={**dict(self.members or {}), "temperature": "off"},
+                         h_candidates=cands, h_selection_cv=cv,
+                         h_selection_prune=self.h_selection_prune,
+                         leakage_search_any_gauge=self.leakage_search_any_gauge)
         return est.fit(corrected, meta), corrected
 
     def _temperature_link(self, trials, meta) -> "SelfSensingEstimator":
@@ -1938,7 +1954,7 @@ class SelfSensingEstimator:
             info["note"] = "no charge-scale trend in the anchors: not applied"
             return self
         try:
-            est1, corr1 = self._temperature_refit(trials, meta, tm.campaign_scales(names, b0, k_c))
+            est1, corr1 = self._temperature_refit(trials, meta, tm.campaign_scales(names, b0, k_c), hold_form=True)
             d1, _ = tm.anchor_trend(est1._temperature_anchors(corr1, meta), k_c)
             del est1, corr1   # memory: one recalibrated copy of the trials at a time
             b = tm.secant_slope(b0, b0, 0.0 if d1 is None else d1)
