@@ -68,6 +68,7 @@ DATES = {
     "gap_tip_20261213_matched": "2026-12-04",
     "gap_tip_20261214": "2026-12-04",
     "gap_tip_20261216": "2026-12-05",
+    "gap_tip_20261217": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
     "gap_joint_20261204": "2026-12-02",
@@ -190,6 +191,7 @@ COMMANDS = {
     "gap_tip_20261213": "selfsense gap blind --tip --n 80 --seed 20261213 --jobs 1 --out benchmarks/gap_tip/seed_20261213",
     "gap_tip_20261214": "selfsense gap blind --tip --n 80 --seed 20261214 --jobs 1 --out benchmarks/gap_tip/seed_20261214",
     "gap_tip_20261216": "selfsense gap blind --tip --n 80 --seed 20261216 --jobs 1 --out benchmarks/gap_tip/seed_20261216",
+    "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
     "gap_tip_20261213_matched": "python benchmarks/tip_matched_twin.py --records benchmarks/gap_tip/seed_20261213 "
                                 "--out benchmarks/gap_tip/seed_20261213_matched",
     # the joint tip tier (cases with 2-3 effects, the all-together prediction against the twin without them)
@@ -745,7 +747,8 @@ def _generations(entries: list[tuple[str, str, str]], marker: str) -> list[tuple
 #: 240-case seed 14142 beside the smaller first tier of the Preisach stand-in; seed 20261202 beside the current code)
 TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(before 2026-12-03) ",
                   "gap_tip_20261213": "(amplifier against the effect-free twin) ",
-                  "gap_tip_20261214": "(before the temperature member) "}
+                  "gap_tip_20261214": "(before the temperature member) ",
+                  "gap_tip_20261216": "(before the temperature trend refit held the form) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -806,7 +809,10 @@ def gap_figures() -> list[Fig]:
          "the seed-20261214 rows are the current code"),
         ("benchmarks/gap_tip/seed_20261214", "gap_tip_20261214",
          "; made before the estimator's temperature member (2026-12-05); the seed-20261216 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261216", "gap_tip_20261216", ""),
+        ("benchmarks/gap_tip/seed_20261216", "gap_tip_20261216",
+         "; made before the temperature member's trend refit held the form (its temperature cases may differ slightly); "
+         "the seed-20261217 rows are the current code"),
+        ("benchmarks/gap_tip/seed_20261217", "gap_tip_20261217", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
