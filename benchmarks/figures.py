@@ -69,6 +69,7 @@ DATES = {
     "gap_tip_20261214": "2026-12-04",
     "gap_tip_20261216": "2026-12-05",
     "gap_tip_20261217": "2026-12-05",
+    "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
     "gap_joint_20261204": "2026-12-02",
@@ -192,6 +193,10 @@ COMMANDS = {
     "gap_tip_20261214": "selfsense gap blind --tip --n 80 --seed 20261214 --jobs 1 --out benchmarks/gap_tip/seed_20261214",
     "gap_tip_20261216": "selfsense gap blind --tip --n 80 --seed 20261216 --jobs 1 --out benchmarks/gap_tip/seed_20261216",
     "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
+    # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
+    "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
+                            "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
+                            "benchmarks/tip_cases.py --seed 20261217 --cases 80,...,159 --jobs 2 --campaign none)",
     "gap_tip_20261213_matched": "python benchmarks/tip_matched_twin.py --records benchmarks/gap_tip/seed_20261213 "
                                 "--out benchmarks/gap_tip/seed_20261213_matched",
     # the joint tip tier (cases with 2-3 effects, the all-together prediction against the twin without them)
@@ -812,7 +817,9 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_20261216", "gap_tip_20261216",
          "; made before the temperature member's trend refit held the form (its temperature cases may differ slightly); "
          "the seed-20261217 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261217", "gap_tip_20261217", ""),
+        ("benchmarks/gap_tip/seed_20261217", "gap_tip_20261217",
+         "; the first contact of this code, its first 80 cases; the 160-case rows of the same seed follow"),
+        ("benchmarks/gap_tip/seed_20261217_160", "gap_tip_20261217_160", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:

@@ -45,3 +45,45 @@ def test_stage_chain_refuses_to_mix_forced_members_into_a_folder(tmp_path):
     assert p.returncode != 0
     assert '--members {"offset_drift": "on"}' in p.stderr and "another --out" in p.stderr
     assert (tmp_path / "records.jsonl").read_text() == json.dumps(rec) + "\n"
+
+
+def _tip_pool():
+    s = importlib.util.spec_from_file_location("tip_pool", ROOT / "benchmarks" / "tip_pool.py")
+    m = importlib.util.module_from_spec(s)
+    s.loader.exec_module(m)
+    return m
+
+
+def test_tip_pool_writes_the_committed_tier_and_refuses_parts_that_do_not_make_one(tmp_path):
+    """``benchmarks/tip_pool.py`` pools the parts of one seed into the records and scores one campaign of that many
+    cases writes: the committed 160-case tier is its output from the committed 80-case first contact and cases
+    80-159; records of two seeds, a case twice or a gap in the cases are refused."""
+    import gzip
+    import json
+
+    pool = _tip_pool()
+    tier = ROOT / "benchmarks" / "gap_tip" / "seed_20261217_160"
+    recs = [json.loads(x) for x in gzip.open(tier / "tip_cases.jsonl.gz", "rt")]
+    first = ROOT / "benchmarks" / "gap_tip" / "seed_20261217" / "tip_cases.jsonl.gz"
+    assert [json.loads(x) for x in gzip.open(first, "rt")] == recs[:80]
+
+    def part(name, rows):
+        p = tmp_path / name
+        with gzip.open(p, "wt") as fh:
+            fh.writelines(json.dumps(r) + "\n" for r in rows)
+        return str(p)
+
+    rest = part("rest.jsonl.gz", recs[80:])
+    out = tmp_path / "pooled"
+    cmd = json.loads((tier / "tip_scores.json").read_text())
+    assert pool.main(["--records", str(first), rest, "--out", str(out), "--command", "x"]) == 0
+    got = json.loads((out / "tip_scores.json").read_text())
+    assert got == cmd
+    assert (out / "tip_cases.jsonl.gz").read_bytes() == (tier / "tip_cases.jsonl.gz").read_bytes()
+    with pytest.raises(SystemExit, match="once each"):
+        pool.main(["--records", str(first), part("gap.jsonl.gz", recs[81:]), "--out", str(out), "--command", "x"])
+    with pytest.raises(SystemExit, match="once each"):
+        pool.main(["--records", str(first), part("twice.jsonl.gz", recs[79:]), "--out", str(out), "--command", "x"])
+    other = [dict(r, seed=1) for r in recs[80:]]
+    with pytest.raises(SystemExit, match="several seeds"):
+        pool.main(["--records", str(first), part("seed.jsonl.gz", other), "--out", str(out), "--command", "x"])
