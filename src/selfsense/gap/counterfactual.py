@@ -204,7 +204,8 @@ def adopted_members(fitted) -> dict:
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
             "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),
             "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False)),
-            "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False))}
+            "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False)),
+            "amplifier_lag": bool((getattr(fitted, "amplifier_lag_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):
@@ -575,6 +576,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
                                         "laser of the free-tip calibration trials" if m == "absorption" else
                                         "undithered shunt channel, calibration rows" if m == "quantiser" else
                                         "force-reference calibration rows" if m == "stress" else
+                                        "command lead, calibration rows" if m == "amplifier_lag" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             w = without({m: "off"})
