@@ -1692,6 +1692,25 @@ class SelfSensingEstimator:
                             lim, h_of)
         return _with_column(df, "V", V)
 
+    def _start_member(self, name: str, default: str) -> dict:
+        """The record of a member decided after the coefficients (``amplifier_lag``, ``temperature``): its mode (the
+        forced one, else the configuration's, whose default is ``default``; "auto" with the configuration "off" is
+        off), set as ``self.<name>_`` and ``fit_report_[name]`` before anything is decided."""
+        mode = self._member_modes()[name]
+        if mode == "auto" and getattr(self.config, name, default) == "off":
+            mode = "off"
+        info: dict = {"mode": mode, "applied": False}
+        setattr(self, f"{name}_", info)
+        self.fit_report_[name] = info
+        return info
+
+    def _take_fitted_state(self, est: "SelfSensingEstimator") -> None:
+        """Every fitted attribute of ``est`` (a recalibration of this configuration on corrected signals) taken over
+        by this estimator; what the caller gave (configuration, rig, members) stays."""
+        for f in dataclasses.fields(self):
+            if not f.init:
+                setattr(self, f.name, getattr(est, f.name))
+
     def _with_lag(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with the lag member's voltage ``V - tau gain du_cmd/dt`` (unchanged when not applied)."""
         lag = self.amplifier_lag_ or {}
@@ -1715,17 +1734,11 @@ class SelfSensingEstimator:
         is calibrated again on every trial's ``V - tau gain du_cmd/dt`` (the selection the fit ran: the configured
         candidates with the blocked CV, or the caller's held form) and this estimator takes that state. Returns
         whether it was adopted."""
-        import dataclasses as dc
-
         from selfsense.chain.amplifier import LAG_MAX_S, LAG_MIN_GAIN, lag_column
         from selfsense.hysteresis.models.select import select_h_model
 
-        mode = self._member_modes()["amplifier_lag"]
-        if mode == "auto" and getattr(self.config, "amplifier_lag", "auto") == "off":
-            mode = "off"
-        info: dict = {"mode": mode, "applied": False}
-        self.amplifier_lag_ = info
-        self.fit_report_["amplifier_lag"] = info
+        info = self._start_member("amplifier_lag", "auto")
+        mode = info["mode"]
         if mode == "off":
             info["note"] = "amplifier lag member off (config amplifier_lag: off or member forced off)"
             return False
@@ -1783,9 +1796,7 @@ class SelfSensingEstimator:
             info["note"] = what + f": not applied, the recalibration failed ({type(exc).__name__}: {exc})"
             self.fit_report_.setdefault("warnings", []).append(info["note"])
             return False
-        for f in dc.fields(self):
-            if not f.init:
-                setattr(self, f.name, getattr(est, f.name))
+        self._take_fitted_state(est)
         info.update({"applied": True, "source": "forced" if mode == "on" else "calibration rows",
                      "note": what + ": applied"})
         self.amplifier_lag_ = info
@@ -2036,16 +2047,10 @@ class SelfSensingEstimator:
         where the first trend implies a scale change of at least
         :data:`~selfsense.chain.temperature.MIN_CAMPAIGN_CHANGE` over the campaign; "on" wherever the trend is
         identified. Where adopted, the fitted state is that of the chain calibrated on the corrected charges."""
-        import dataclasses as dc
-
         from selfsense.chain import temperature as tm
 
-        mode = self._member_modes()["temperature"]
-        if mode == "auto" and getattr(self.config, "temperature", "off") == "off":
-            mode = "off"
-        info: dict = {"mode": mode, "applied": False}
-        self.temperature_ = info
-        self.fit_report_["temperature"] = info
+        info = self._start_member("temperature", "off")
+        mode = info["mode"]
         if mode == "off":
             info["note"] = "temperature member off (config temperature: off or member forced off)"
             return self
@@ -2083,9 +2088,7 @@ class SelfSensingEstimator:
             info["note"] = f"temperature member not applied: the recalibration failed ({type(exc).__name__}: {exc})"
             self.fit_report_.setdefault("warnings", []).append(info["note"])
             return self
-        for f in dc.fields(self):
-            if not f.init:
-                setattr(self, f.name, getattr(est, f.name))
+        self._take_fitted_state(est)
         info.update({"applied": True, "source": "forced" if mode == "on" else "free- and blocked-tip anchors",
                      "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": abs(b) * max(
                          len(names) - 1, 1), "scales": scales,
