@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from selfsense.chain.amplifier import LAG_MAX_S, LAG_MIN_GAIN, lag_column
+from selfsense.chain.amplifier import LAG_MAX_R2, LAG_MAX_S, LAG_MIN_GAIN, lag_column, lag_r2
 from selfsense.gap.blind import FS_CASE, T_CASE
 from selfsense.gap.blindsim import simulate_family_case
 from selfsense.gap.counterfactual import _summary, tip_table
@@ -30,6 +30,17 @@ def test_lag_column_is_the_backward_difference_of_the_command():
     t = np.cumsum(np.r_[0.0, np.random.default_rng(0).uniform(0.5e-3, 1.5e-3, 50)])
     col = lag_column(pd.DataFrame({"t": t, "u_cmd": 3.0 * t}), 20.0)
     assert col[0] == 0.0 and np.allclose(col[1:], 60.0)
+
+
+def test_lag_r2_is_the_share_a_design_reproduces():
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(400, 3))
+    assert lag_r2(X, X @ np.array([1.0, -2.0, 0.5])) == pytest.approx(1.0)
+    w = rng.normal(size=400)
+    X1 = np.column_stack([X, np.ones(400)])
+    w -= X1 @ np.linalg.lstsq(X1, w, rcond=None)[0]        # orthogonal to every column and of mean 0
+    assert lag_r2(X, w) == pytest.approx(0.0, abs=1e-12)
+    assert lag_r2(X, np.ones(400)) == 1.0                    # a constant column tells nothing
 
 
 def test_config_and_member_modes():
@@ -76,7 +87,7 @@ def test_adopted_on_the_simulated_amplifier_and_table3_lowered(clean, fits):
     auto, off = fits
     lag = auto.amplifier_lag_
     assert lag["applied"] and lag["source"] == "calibration rows" and lag["cv_gain"] >= LAG_MIN_GAIN
-    assert 0 < lag["tau_s"] <= LAG_MAX_S
+    assert 0 < lag["tau_s"] <= LAG_MAX_S and lag["column_r2"] <= LAG_MAX_R2
     assert auto.fit_report_["amplifier_lag"]["applied"] and "applied" in lag["note"]
     assert not off.amplifier_lag_["applied"] and "off" in off.amplifier_lag_["note"]
     assert _table3(auto, tr, me, rig) < _table3(off, tr, me, rig)
@@ -118,3 +129,17 @@ def test_model_file_and_stream_carry_the_member(clean, fits):
             for col in ("dx_hat", "f_hat"):
                 rng = float(np.ptp(batch[col])) or 1.0
                 assert np.max(np.abs(out[col] - batch[col].to_numpy())) < 1e-9 * rng, (t, col, stamps is None)
+
+
+def test_not_adopted_where_the_calibration_is_sines_at_one_rate(clean):
+    """The thesis protocol (a free-tip and a blocked-tip sine): a lag of a sine is a loop width like the hysteresis'
+    own, and the column is not separable from it on those rows."""
+    tr, me, rig = clean
+    meta = me.set_index("trial") if "trial" in me.columns else me
+    sines = meta.drop(index=[t for t in meta.index if meta.loc[t, "role"] == "calibration"
+                             and meta.loc[t, "signal"] != "sine"])
+    assert list(sines[sines["role"] == "calibration"]["signal"]) == ["sine", "sine"]
+    est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit(tr, sines)
+    lag = est.amplifier_lag_
+    assert not lag["applied"] and lag["column_r2"] > LAG_MAX_R2
+    assert "does not separate a lag from the hysteresis" in lag["note"]

@@ -1734,8 +1734,9 @@ class SelfSensingEstimator:
         is calibrated again on every trial's ``V - tau gain du_cmd/dt`` (the selection the fit ran: the configured
         candidates with the blocked CV, or the caller's held form) and this estimator takes that state. Returns
         whether it was adopted."""
-        from selfsense.chain.amplifier import LAG_MAX_S, LAG_MIN_GAIN, lag_column
-        from selfsense.hysteresis.models.select import select_h_model
+        from selfsense.chain.amplifier import LAG_MAX_R2, LAG_MAX_S, LAG_MIN_GAIN, lag_column, lag_r2
+        from selfsense.hysteresis.models import fit_stride
+        from selfsense.hysteresis.models.select import select_h_model, stacked_design
 
         info = self._start_member("amplifier_lag", "auto")
         mode = info["mode"]
@@ -1761,6 +1762,8 @@ class SelfSensingEstimator:
             dt = float(np.median([_trial_dt(linked[n]) for n in names]))
             cols = [lag_column(linked[n], gain)[linked[n]["relay"].to_numpy() < 0.5] for n in names]
             ex1 = [np.column_stack([e, w]) for e, w in zip(ex, cols)]
+            k = max(4, fit_stride([len(q) for q in qs]))
+            r2 = lag_r2(stacked_design(_reference_h(), qs, ys, dt, ex, k)[0], np.concatenate([w[::k] for w in cols]))
             nb = int(self.config.cv_blocks)
             s0 = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=form, n_blocks=nb, trial_names=names)
             s1 = select_h_model(qs, ys, dt, extras=ex1, free=free, candidates=form, n_blocks=nb, trial_names=names)
@@ -1774,14 +1777,18 @@ class SelfSensingEstimator:
         tau = float(s1.extra_coef[-1]) if len(s1.extra_coef) == ex1[0].shape[1] else float("nan")
         gain_cv = 1.0 - cv1 / cv0 if cv0 > 0 else 0.0
         in_range = bool(np.isfinite(tau) and 0.0 < tau <= LAG_MAX_S)
-        supported = bool(in_range and gain_cv >= LAG_MIN_GAIN and r1["label"] == r0["label"])
+        separable = bool(r2 <= LAG_MAX_R2)
+        supported = bool(in_range and separable and gain_cv >= LAG_MIN_GAIN and r1["label"] == r0["label"])
         info.update({"tau_s": tau, "form": r1["label"], "cv_rms_v_without": cv0, "cv_rms_v_with": cv1,
-                     "cv_gain": gain_cv, "supported": supported})
+                     "cv_gain": gain_cv, "column_r2": r2, "supported": supported})
         what = (f"lag column on {r1['label']}: tau {tau * 1e3:.3g} ms, blocked-CV error {cv0:.4g} -> {cv1:.4g} V "
-                f"({gain_cv * 100:+.1f} %)")
+                f"({gain_cv * 100:+.1f} %), {r2 * 100:.1f} % of the column reproduced by a rate-independent operator "
+                f"on the calibration rows")
         if not (supported or (mode == "on" and in_range)):
-            info["note"] = what + (f": not applied (needs 0 < tau <= {LAG_MAX_S * 1e3:g} ms and a gain of at least "
-                                   f"{LAG_MIN_GAIN * 100:g} %)")
+            why = ("the calibration does not separate a lag from the hysteresis (sines at one rate: a drive with "
+                   f"holds or another rate would; needs <= {LAG_MAX_R2 * 100:g} %)" if not separable else
+                   f"needs 0 < tau <= {LAG_MAX_S * 1e3:g} ms and a gain of at least {LAG_MIN_GAIN * 100:g} %")
+            info["note"] = what + f": not applied ({why})"
             return False
         corrected = {t: _with_column(df, "V", df["V"].to_numpy(dtype=float) - tau * lag_column(df, gain))
                      for t, df in trials.items()}
