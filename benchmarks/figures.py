@@ -60,6 +60,8 @@ DATES = {
     "stage_chain_lag_fresh1000": "2026-12-05",
     "stage_chain_lag_off_fresh1000": "2026-12-05",
     "whole_device_lag_fresh70": "2026-12-05",
+    "whole_device_lag_gate_fresh70": "2026-12-05",
+    "stage_chain_lag_gate_fresh1000": "2026-12-05",
     "whole_device_lag_off_fresh70": "2026-12-05",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
@@ -274,10 +276,17 @@ COMMANDS = {
     "stage_chain_lag_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
                                  "--out benchmarks/stage_chain/lag_fresh1000",
     "stage_chain_lag_off_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
-                                     "--members '{\"amplifier_lag\": \"off\"}' "
+                                     "--members '{{\"amplifier_lag\": \"off\"}}' "
                                      "--out benchmarks/stage_chain/lag_off_fresh1000",
     "whole_device_lag_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                 "--randomise device --out benchmarks/cross_device/whole_device/lag_fresh70",
+    "whole_device_lag_gate_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 1 --protocol thesis "
+                                     "--randomise device --out benchmarks/cross_device/whole_device/lag_gate_fresh70 "
+                                     "(resumed from a copy of lag_fresh70 without the device that had adopted the "
+                                     "member)",
+    "stage_chain_lag_gate_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
+                                      "--out benchmarks/stage_chain/lag_gate_fresh1000 (resumed from a copy of "
+                                      "lag_fresh1000 without the five devices that had adopted the member)",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -440,6 +449,7 @@ WHOLE_QZ = "benchmarks/cross_device/whole_device/thesis_quantiser"
 WHOLE_QZB = "benchmarks/cross_device/whole_device/thesis_quantiser_bound"
 WHOLE_LAG = "benchmarks/cross_device/whole_device/lag_fresh70"
 WHOLE_LAG_OFF = "benchmarks/cross_device/whole_device/lag_off_fresh70"
+WHOLE_LAG_GATE = "benchmarks/cross_device/whole_device/lag_gate_fresh70"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -606,8 +616,12 @@ def cross_device_figures() -> list[Fig]:
             # with the member forced off
             + (_device_table_figures(f"{WHOLE_LAG}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
-                                     "lag member (its first contact; current code)", COMMANDS["whole_device_lag_fresh70"],
-                                     DATES["whole_device_lag_fresh70"])
+                                     "lag member (its first contact, before its separability gate)",
+                                     COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
+               + _device_table_figures(f"{WHOLE_LAG_GATE}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, seeds 70-71 (seen once), the "
+                                       "amplifier lag member with its separability gate (current code)",
+                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
                                        "lag member forced off", COMMANDS["whole_device_lag_off_fresh70"],
@@ -734,7 +748,9 @@ def stage_chain_figures() -> list[Fig]:
              ("benchmarks/stage_chain/lag_off_fresh1000/records.jsonl", ", fresh seeds 1000-1002, the amplifier lag "
               "member forced off", "stage_chain_lag_off_fresh1000"),
              ("benchmarks/stage_chain/lag_fresh1000/records.jsonl", ", fresh seeds 1000-1002, the amplifier lag "
-              "member (its first contact; current code)", "stage_chain_lag_fresh1000")]
+              "member (its first contact, before its separability gate)", "stage_chain_lag_fresh1000"),
+             ("benchmarks/stage_chain/lag_gate_fresh1000/records.jsonl", ", seeds 1000-1002 (seen once), the amplifier "
+              "lag member with its separability gate (current code)", "stage_chain_lag_gate_fresh1000")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -764,7 +780,7 @@ def stage_chain_figures() -> list[Fig]:
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
                "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500",
                "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806", "stage_chain_current_fresh900",
-               "stage_chain_lag_fresh1000"}
+               "stage_chain_lag_fresh1000", "stage_chain_lag_gate_fresh1000"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)
