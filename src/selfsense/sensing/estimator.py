@@ -1764,6 +1764,13 @@ class SelfSensingEstimator:
             ex1 = [np.column_stack([e, w]) for e, w in zip(ex, cols)]
             k = max(4, fit_stride([len(q) for q in qs]))
             r2 = lag_r2(stacked_design(_reference_h(), qs, ys, dt, ex, k)[0], np.concatenate([w[::k] for w in cols]))
+            info["column_r2"] = r2
+            if r2 > LAG_MAX_R2 and mode != "on":   # not separable: the blocked CV is not run
+                info["note"] = (f"{r2 * 100:.1f} % of the lag column reproduced by a rate-independent operator on the "
+                                f"calibration rows: not applied (the calibration does not separate a lag from the "
+                                f"hysteresis, e.g. sines at one rate; a drive with holds or another rate would; needs "
+                                f"<= {LAG_MAX_R2 * 100:g} %)")
+                return False
             nb = int(self.config.cv_blocks)
             s0 = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=form, n_blocks=nb, trial_names=names)
             s1 = select_h_model(qs, ys, dt, extras=ex1, free=free, candidates=form, n_blocks=nb, trial_names=names)
