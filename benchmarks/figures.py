@@ -57,6 +57,12 @@ DATES = {
     "stage_chain_tip_creep_fresh800": "2026-12-03",
     "stage_chain_drift_refit_fresh806": "2026-12-03",
     "stage_chain_current_fresh900": "2026-12-04",
+    "stage_chain_lag_fresh1000": "2026-12-05",
+    "stage_chain_lag_off_fresh1000": "2026-12-05",
+    "whole_device_lag_fresh70": "2026-12-05",
+    "whole_device_lag_gate_fresh70": "2026-12-05",
+    "stage_chain_lag_gate_fresh1000": "2026-12-05",
+    "whole_device_lag_off_fresh70": "2026-12-05",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -267,6 +273,23 @@ COMMANDS = {
                                         "--out benchmarks/stage_chain/drift_refit_fresh806",
     "stage_chain_current_fresh900": "python benchmarks/stage_chain.py devices --seeds 900-905 --hold-s 0 "
                                     "--out benchmarks/stage_chain/current_fresh900",
+    "stage_chain_lag_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
+                                 "--out benchmarks/stage_chain/lag_fresh1000",
+    "stage_chain_lag_off_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
+                                     "--members '{{\"amplifier_lag\": \"off\"}}' "
+                                     "--out benchmarks/stage_chain/lag_off_fresh1000",
+    "whole_device_lag_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
+                                "--randomise device --out benchmarks/cross_device/whole_device/lag_fresh70",
+    "whole_device_lag_gate_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 1 --protocol thesis "
+                                     "--randomise device --out benchmarks/cross_device/whole_device/lag_gate_fresh70 "
+                                     "(resumed from a copy of lag_fresh70 without the device that had adopted the "
+                                     "member)",
+    "stage_chain_lag_gate_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
+                                      "--out benchmarks/stage_chain/lag_gate_fresh1000 (resumed from a copy of "
+                                      "lag_fresh1000 without the five devices that had adopted the member)",
+    "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
+                                    "--randomise device --member amplifier_lag=off "
+                                    "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
     "creep_chain_first_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
                                   "--jobs 2 --out benchmarks/gap_tip/creep_chain_first_20261211.md",
     "creep_chain_held_20261211": "python benchmarks/tip_cases.py --seed 20261211 --cases 0,1,37,51,53,67,76,91 "
@@ -424,6 +447,9 @@ WHOLE_FM = "benchmarks/cross_device/whole_device/thesis_fold_majority"
 WHOLE_HG = "benchmarks/cross_device/whole_device/thesis_holds_g"
 WHOLE_QZ = "benchmarks/cross_device/whole_device/thesis_quantiser"
 WHOLE_QZB = "benchmarks/cross_device/whole_device/thesis_quantiser_bound"
+WHOLE_LAG = "benchmarks/cross_device/whole_device/lag_fresh70"
+WHOLE_LAG_OFF = "benchmarks/cross_device/whole_device/lag_off_fresh70"
+WHOLE_LAG_GATE = "benchmarks/cross_device/whole_device/lag_gate_fresh70"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -586,6 +612,21 @@ def cross_device_figures() -> list[Fig]:
                                   "families, 10 devices each", COMMANDS["whole_device_quantiser_bound"],
                                   DATES["whole_device_quantiser_bound"], history=True)]
                if (ROOT / WHOLE_QZB / "cross_device.csv").exists() else [])
+            # the voltage link's lag member: its first contact on fresh seeds 70-71 (current code), and the same devices
+            # with the member forced off
+            + (_device_table_figures(f"{WHOLE_LAG}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
+                                     "lag member (its first contact, before its separability gate)",
+                                     COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
+               + _device_table_figures(f"{WHOLE_LAG_GATE}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, seeds 70-71 (seen once), the "
+                                       "amplifier lag member with its separability gate (current code)",
+                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"])
+               + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
+                                       "lag member forced off", COMMANDS["whole_device_lag_off_fresh70"],
+                                       DATES["whole_device_lag_off_fresh70"], history=True)
+               if (ROOT / WHOLE_LAG / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
@@ -703,7 +744,13 @@ def stage_chain_figures() -> list[Fig]:
               "beside the creep member decided against the chain calibrated without it (its first contact; current "
               "code)", "stage_chain_drift_refit_fresh806"),
              ("benchmarks/stage_chain/current_fresh900/records.jsonl", ", fresh seeds 900-905, the code of "
-              "2026-12-04 (its first contact)", "stage_chain_current_fresh900")]
+              "2026-12-04 (its first contact)", "stage_chain_current_fresh900"),
+             ("benchmarks/stage_chain/lag_off_fresh1000/records.jsonl", ", fresh seeds 1000-1002, the amplifier lag "
+              "member forced off", "stage_chain_lag_off_fresh1000"),
+             ("benchmarks/stage_chain/lag_fresh1000/records.jsonl", ", fresh seeds 1000-1002, the amplifier lag "
+              "member (its first contact, before its separability gate)", "stage_chain_lag_fresh1000"),
+             ("benchmarks/stage_chain/lag_gate_fresh1000/records.jsonl", ", seeds 1000-1002 (seen once), the amplifier "
+              "lag member with its separability gate (current code)", "stage_chain_lag_gate_fresh1000")]
     newest = {}
     for rel, what, key in sources:
         if (ROOT / rel).exists():
@@ -732,7 +779,8 @@ def stage_chain_figures() -> list[Fig]:
     current = {"stage_chain_relay_bound_fresh", "stage_chain_corroborated_fresh300", "stage_chain_fold_majority_fresh400",
                "stage_chain_corroborated_fresh400", "stage_chain_corroborated_fresh500",
                "stage_chain_selection_leak_fresh600", "stage_chain_selection_leak_fresh500",
-               "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806", "stage_chain_current_fresh900"}
+               "stage_chain_tip_creep_fresh800", "stage_chain_drift_refit_fresh806", "stage_chain_current_fresh900",
+               "stage_chain_lag_fresh1000", "stage_chain_lag_gate_fresh1000"}
     for rel, what, key in fresh:
         if (ROOT / rel).exists():
             recs = load(rel)

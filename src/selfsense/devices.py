@@ -145,6 +145,8 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "quantiser": bool((est.quantiser_ or {}).get("applied", False)),
         "quantiser_i_q_na": float((est.quantiser_ or {}).get("i_q_a", 0.0)) * 1e9,
         "stress": bool((est.stress_ or {}).get("applied", False)),
+        "amplifier_lag_ms": (float((est.amplifier_lag_ or {}).get("tau_s", 0.0)) * 1e3
+                             if (est.amplifier_lag_ or {}).get("applied") else 0.0),
         "regression": str(est.fit_report_.get("regression_form", "")),
         "warnings": list(est.fit_report_.get("warnings", [])),
     })

@@ -82,9 +82,11 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
-        # every member the C code carries: quantiser, absorption, leakage, stress, rest offset, sliding offset (dx
-        # and f), limiting
+        # every member the C code carries: amplifier lag, quantiser, absorption, leakage, stress, rest offset, sliding
+        # offset (dx and f), limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
+        # the voltage link's lag member: the actuator voltage 0.4 ms behind the command
+        est.amplifier_lag_ = {"applied": True, "tau_s": 4.0e-4}
         pr = _rig_params(rig)
         est.absorption_ = {"applied": True, "c_f": 0.02 * pr["n_A"] * pr["C_p"], "tau_s": 1.5}
         # the quantiser member: a threshold midway between two distinct deviations of V_s from the short's mean (no

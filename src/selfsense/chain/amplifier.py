@@ -28,6 +28,19 @@ What the run-time signals show (no reference is read):
 
 A slew limit of the amplifier that binds without the current limit is not rebuilt: off the current plateau the
 link keeps eq. (56).
+
+The **lag member** (:func:`lag_column`): an HV amplifier of finite bandwidth (a first-order lag of time constant
+``tau = 1 / (2 pi f_bw)``, 0.03-0.3 ms for 0.5-5 kHz), or a skew between the DAQ's output and input clocks, delivers
+``V_c(t) = gain u_cmd(t - tau)`` to first order in ``tau``, i.e. ``V_c = gain u_cmd - tau gain du_cmd/dt``. On an
+amplified actuator the tip estimate is a small difference of large voltages (``V_p = V - H(q)``, thesis eq. 27):
+on the devices of the tip campaign a voltage error of 3e-4 of the span moves Table 3 by several points, and a lag
+of 0.3 ms at a few hertz is that large. ``tau`` is identified **jointly with H(q)**: the column ``gain du_cmd/dt``
+(backward difference, 0 at a trial's first sample, so that a stream computes it from the previous sample) joins
+the H fit's extra columns, its coefficient is ``tau`` (the H target carries ``+tau gain du/dt`` where the command
+leads the actuator); the member is adopted where the calibration separates the column from the hysteresis
+(:func:`lag_r2` at most :data:`LAG_MAX_R2`), the column lowers the selected form's blocked-CV error by at least
+:data:`LAG_MIN_GAIN` and ``0 < tau <= LAG_MAX_S``, and the chain is then calibrated on ``V - tau gain
+du_cmd/dt``. The same correction applies to every trial estimated with the model (batch, stream, C export).
 """
 from __future__ import annotations
 
@@ -40,7 +53,8 @@ import pandas as pd
 from selfsense.signals.runs import true_runs
 
 __all__ = ["AmplifierLimit", "shunt_current", "identify_current_limit", "limited_mask", "rebuild_voltage",
-           "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN"]
+           "lag_column", "lag_r2", "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN", "LAG_MAX_S", "LAG_MIN_GAIN",
+           "LAG_MAX_R2"]
 
 #: the current plateau must hold at least this share of the relay-open samples of all trials (effect-free virtual
 #: devices: <= 2 % of samples within the band of their largest current, at the peaks of C dV/dt)
@@ -51,6 +65,17 @@ RUN_MIN_S = 0.05
 #: plateau samples, signed with the current): 0.08-0.26 with the amplifier limits of the tip campaign's cases, below
 #: 0.002 on effect-free devices and on constant-slope command ramps
 LAG_MIN = 0.02
+#: the lag member's bound [s]: a first-order amplifier lag of 5 ms is a bandwidth of 32 Hz, below any HV amplifier
+#: that drives these actuators; a larger coefficient stands in for another misfit
+LAG_MAX_S = 5e-3
+#: ... and the lag column must lower the selected H(q) form's blocked-CV error by at least this fraction
+LAG_MIN_GAIN = 0.02
+#: ... and be identifiable: at most this share of its variance over the calibration rows may be what a rate-independent
+#: operator with creep (the charge link's reference Preisach model) and the rows' other columns reproduce. On a
+#: calibration of sines at one frequency (the thesis protocol) the column is a loop width like the hysteresis' own
+#: (measured 0.990-0.997 on eight devices of the thesis protocol, 0.94-0.96 on tip-protocol devices with a mixed and
+#: a stepped calibration trial), and the CV on sine folds cannot tell which extrapolates to holds
+LAG_MAX_R2 = 0.98
 #: band of the plateau: this many in-amp noise standard deviations, at least BAND_REL of the limit
 BAND_SIGMA, BAND_REL = 5.0, 0.005
 
@@ -190,3 +215,28 @@ def rebuild_voltage(df: pd.DataFrame, shunt_resistance_ohm: float, amplifier_gai
             k = idx[m]
             W[k] = wa[ref] + s_med * (q[k] - qa[ref])
     return W + H
+
+
+def lag_column(df: pd.DataFrame, amplifier_gain: float) -> np.ndarray:
+    """``gain du_cmd/dt`` [V/s] of one trial (module docstring, the lag member): the backward difference of the
+    command over the sample interval of the time stamps, 0 at the first sample. The member's voltage is
+    ``V - tau * lag_column``."""
+    u = df["u_cmd"].to_numpy(dtype=float) * float(amplifier_gain)
+    t = df["t"].to_numpy(dtype=float)
+    out = np.zeros(len(u))
+    if len(u) > 1:
+        dt = np.diff(t)
+        out[1:] = np.where(dt > 0, np.diff(u) / np.where(dt > 0, dt, 1.0), 0.0)
+    return out
+
+
+def lag_r2(design: np.ndarray, column: np.ndarray) -> float:
+    """Share of the variance of the lag column (rows of :func:`lag_column`) that the columns of ``design`` (a
+    rate-independent operator's design with the rows' other columns) reproduce by least squares: near 1 where the
+    calibration cannot tell a lag from hysteresis (:data:`LAG_MAX_R2`)."""
+    w = np.asarray(column, dtype=float)
+    ss = float(np.sum((w - w.mean()) ** 2))
+    if not ss > 0:
+        return 1.0
+    b, *_ = np.linalg.lstsq(design, w, rcond=None)
+    return float(1.0 - np.sum((w - design @ b) ** 2) / ss)

@@ -146,7 +146,8 @@ def _apply(trials: dict, corr: list[dict], meta: pd.DataFrame | None = None) -> 
     return new, outc
 
 
-def _make(make_estimator: Callable, rig, members: dict | None = None, form: tuple = (), reuse=None):
+def _make(make_estimator: Callable, rig, members: dict | None = None, form: tuple = (), reuse=None,
+          held: dict | None = None):
     """An unfitted estimator of the configuration, with ``members`` forced and, when ``form`` is given (the fitted
     estimator's :meth:`~selfsense.sensing.estimator.SelfSensingEstimator.selected_form`), its H(q) form held: a
     recalibration refits the selected form beside the straight line instead of repeating the whole selection, so
@@ -167,7 +168,12 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
     in the sensing regression): its H(q) selection would run on the very rows of the chain without the member
     (measured on tweezer_sim: three such selections, 8-10 s each, of the gap job's 52 s, each selecting the held
     form). Where the creep member then calibrates H(q) again without an adopted offset drift (docs/method.md 6h), that
-    refit keeps the held form too, as a member forced off does."""
+    refit keeps the held form too, as a member forced off does.
+
+    ``held`` (:func:`_held_members`): members whose decision the recalibration takes from the fitted chain, under the
+    ``members`` forced here: the voltage link's lag member where the fitted chain does not carry it (its gate, a
+    blocked CV of the held form with and without the lag column, would otherwise run in every recalibration: 9 s of
+    the 35 s gap job on tweezer_sim, where the chain does not adopt it)."""
     est = make_estimator(rig)
     if hasattr(est, "h_selection_prune"):   # only the selected row is read here: dominated candidates are stopped
         est.h_selection_prune = True
@@ -180,7 +186,17 @@ def _make(make_estimator: Callable, rig, members: dict | None = None, form: tupl
         if not hasattr(est, "members"):
             raise TypeError(f"{type(est).__name__} carries no chain members; cannot force {sorted(members)}")
         est.members = dict(members)
+    if held and hasattr(est, "members"):
+        est.members = {**dict(held), **dict(est.members or {})}
     return est
+
+
+def _held_members(fitted) -> dict:
+    """Members a recalibration of ``fitted`` takes over undecided (:func:`_make`): the amplifier lag off where the fitted
+    chain does not carry it."""
+    if fitted is None or not hasattr(fitted, "amplifier_lag_"):
+        return {}
+    return {} if (fitted.amplifier_lag_ or {}).get("applied") else {"amplifier_lag": "off"}
 
 
 def _splits_fit(est) -> bool:
@@ -204,7 +220,8 @@ def adopted_members(fitted) -> dict:
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
             "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),
             "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False)),
-            "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False))}
+            "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False)),
+            "amplifier_lag": bool((getattr(fitted, "amplifier_lag_", None) or {}).get("applied", False))}
 
 
 def _search_of(fitted):
@@ -221,7 +238,7 @@ def _form_of(fitted) -> tuple:
 
 def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, out_corr: dict | None = None,
               estimator=None, members: dict | None = None, form: tuple = (), reuse=None,
-              seen: dict | None = None, inputs_of: Callable | None = None):
+              seen: dict | None = None, inputs_of: Callable | None = None, held: dict | None = None):
     """Per validation trial: thesis Table 3's error (mean |estimate - reference| in % of the trial's reference
     range, every finite sample, :func:`selfsense.report.tables.trial_errors`) and the same per contiguous block
     (for the bootstrap). ``estimator``: an already fitted one (else ``make_estimator(rig)`` is fitted).
@@ -231,7 +248,8 @@ def tip_table(trials: dict, meta: pd.DataFrame, rig, make_estimator: Callable, o
     estimator inputs (Q, V) applied to ``trials``: tables that differ only by output corrections (charge-free motion,
     load stage) score the same estimate of the same inputs, which is made once (the same numbers: ``estimate`` is a
     deterministic function of the fitted estimator and the trial's columns)."""
-    est = estimator if estimator is not None else _make(make_estimator, rig, members, form, reuse).fit(trials, meta)
+    est = (estimator if estimator is not None else
+           _make(make_estimator, rig, members, form, reuse, held).fit(trials, meta))
     keep = seen is not None and inputs_of is not None and estimator is not None
     rows = {}
     for t, m in meta.iterrows():
@@ -369,7 +387,8 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         # the leakage search reads the calibration inputs alone (not the forced members): a recalibration on the
         # same corrected inputs as an earlier one takes that one's search over (the estimator checks the inputs'
         # digest and searches again where it differs), else the fitted estimator's (valid without input corrections)
-        est = _make(make_estimator, rig, dict(mem_items), form, searches.get(S_fit) or _search_of(fitted))
+        est = _make(make_estimator, rig, dict(mem_items), form, searches.get(S_fit) or _search_of(fitted),
+                    _held_members(fitted))
         hk = h_key(k)
         later = h_users.get(hk, set()) - {k}
         h_users[hk] = later
@@ -559,7 +578,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
         key = tuple(sorted(mem.items()))
         if key not in tables:
             tables[key] = tip_table(trials, meta, rig, make_estimator, members=mem, form=form,
-                                    reuse=_search_of(fitted))
+                                    reuse=_search_of(fitted), held=_held_members(fitted))
         return _summary(tables[key])
 
     if not carried:
@@ -575,6 +594,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
                                         "laser of the free-tip calibration trials" if m == "absorption" else
                                         "undithered shunt channel, calibration rows" if m == "quantiser" else
                                         "force-reference calibration rows" if m == "stress" else
+                                        "command lead, calibration rows" if m == "amplifier_lag" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}
         if a:
             w = without({m: "off"})

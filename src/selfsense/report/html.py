@@ -199,6 +199,13 @@ def _model_section(results_dir: Path) -> list[str]:
         kind += (f"; actuator voltage where the HV amplifier sits at its current limit (shunt current of every trial, "
                  f"docs/method.md 1a): {'rebuilt' if amp.get('applied') else 'read from the command, eq. (56)'}, "
                  f"{html.escape(str(amp['note']))}")
+    lag = d.get("amplifier_lag") or {}
+    if lag.get("note"):
+        kind += (f"; actuator voltage behind the command by the HV amplifier's lag (voltage link, a column gain du/dt "
+                 f"in the selected H(q) form's fit, docs/method.md 1a'): "
+                 + (f"carried, tau = {float(lag.get('tau_s', 0.0)) * 1e3:.3g} ms" if lag.get("applied")
+                    else "not applied")
+                 + f", {html.escape(str(lag['note']))}")
     ab = d.get("absorption") or {}
     if ab.get("note"):
         kind += (f"; dielectric absorption (charge link, free-tip calibration laser, docs/method.md 6c): "

@@ -60,7 +60,7 @@ DRIFT = ("auto", "off")
 #: the chain members ``SelfSensingEstimator(members=...)`` can force: charge link (leakage, offset drift, absorption,
 #: quantiser), H link (hold rows), voltage link (amplifier), load link (stress: :mod:`selfsense.chain.load`)
 CHAIN_MEMBER_NAMES = ("leakage", "offset_drift", "hold_rows", "amplifier", "absorption", "quantiser", "stress",
-                      "tip_creep", "temperature")
+                      "tip_creep", "temperature", "amplifier_lag")
 REGRESSIONS = ("auto", "approx", "twoport", "full")
 #: refits of H on the drift-free charge (the drift is always estimated with the H of the drift-column fit)
 N_DRIFT_ALTERNATIONS = 1
@@ -117,6 +117,11 @@ class SensingConfig:
     #: 2.14 / 3.91 %), and its joint identification calibrates the chain twice more (docs/method.md 6i). The gap
     #: diagnostic forces it on to predict how far a named temperature drift's gap shrinks
     temperature: str = "off"
+    #: the voltage link's lag member (:func:`selfsense.chain.amplifier.lag_column`, docs/method.md 1a'): the HV
+    #: amplifier's bandwidth (or a DAQ clock skew) delays the actuator voltage behind the command, ``V = gain
+    #: u_cmd(t - tau) - V_s``; "auto" where the lag column lowers the selected H(q) form's blocked-CV error by at
+    #: least 2 % with 0 < tau <= 5 ms, "off" never
+    amplifier_lag: str = "auto"
 
     def __post_init__(self) -> None:
         if self.h_mode not in H_MODES:
@@ -137,6 +142,8 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.hold_rows: expected 'auto' or 'off', found {self.hold_rows!r}")
         if self.amplifier not in ("auto", "off"):
             raise ValueError(f"SensingConfig.amplifier: expected 'auto' or 'off', found {self.amplifier!r}")
+        if self.amplifier_lag not in ("auto", "off"):
+            raise ValueError(f"SensingConfig.amplifier_lag: expected 'auto' or 'off', found {self.amplifier_lag!r}")
         if self.absorption not in ("auto", "off"):
             raise ValueError(f"SensingConfig.absorption: expected 'auto' or 'off', found {self.absorption!r}")
         if self.quantiser not in ("auto", "off"):
@@ -686,6 +693,9 @@ class SelfSensingEstimator:
     #: the charge link's temperature member (:mod:`selfsense.chain.temperature`): the campaign's charge-scale slope,
     #: each trial's scale, whether applied
     temperature_: dict = field(default_factory=dict, init=False)
+    #: the voltage link's lag member (:func:`selfsense.chain.amplifier.lag_column`): the lag tau [s], its blocked-CV
+    #: evidence, whether applied
+    amplifier_lag_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
     def selected_form(self) -> tuple:
@@ -718,6 +728,7 @@ class SelfSensingEstimator:
         V, Q and relay feed the reference-free hold evidence (:func:`selfsense.chain.charge.hold_evidence`).
         """
         meta = meta.set_index("trial") if "trial" in meta.columns else meta
+        self.amplifier_lag_ = {}   # decided after the coefficients (fit_coefficients); a refit starts without it
         cal = meta[meta["role"] == "calibration"]
         if cal.empty:
             raise CalibrationError("trials.csv: no trial with role 'calibration'; at least one is required")
@@ -1063,7 +1074,8 @@ class SelfSensingEstimator:
         return member_modes(self.members, {"offset_drift": getattr(self.config, "offset_drift", "auto"),
                                            "stress": getattr(self.config, "stress", "off"),
                                            "tip_creep": getattr(self.config, "tip_creep", "auto"),
-                                           "temperature": getattr(self.config, "temperature", "off")})
+                                           "temperature": getattr(self.config, "temperature", "off"),
+                                           "amplifier_lag": getattr(self.config, "amplifier_lag", "auto")})
 
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
@@ -1667,6 +1679,7 @@ class SelfSensingEstimator:
 
     def _with_voltage(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with its current-limited actuator voltage rebuilt (unchanged when the member is not applied)."""
+        df = self._with_lag(df)
         if not self.amplifier_.get("applied") or "V_s" not in df or "u_cmd" not in df:
             return df
         from selfsense.chain.amplifier import AmplifierLimit, rebuild_voltage
@@ -1678,6 +1691,131 @@ class SelfSensingEstimator:
         V = rebuild_voltage(df, rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain"),
                             lim, h_of)
         return _with_column(df, "V", V)
+
+    def _start_member(self, name: str, default: str) -> dict:
+        """The record of a member decided after the coefficients (``amplifier_lag``, ``temperature``): its mode (the
+        forced one, else the configuration's, whose default is ``default``; "auto" with the configuration "off" is
+        off), set as ``self.<name>_`` and ``fit_report_[name]`` before anything is decided."""
+        mode = self._member_modes()[name]
+        if mode == "auto" and getattr(self.config, name, default) == "off":
+            mode = "off"
+        info: dict = {"mode": mode, "applied": False}
+        setattr(self, f"{name}_", info)
+        self.fit_report_[name] = info
+        return info
+
+    def _take_fitted_state(self, est: "SelfSensingEstimator") -> None:
+        """Every fitted attribute of ``est`` (a recalibration of this configuration on corrected signals) taken over
+        by this estimator; what the caller gave (configuration, rig, members) stays."""
+        for f in dataclasses.fields(self):
+            if not f.init:
+                setattr(self, f.name, getattr(est, f.name))
+
+    def _with_lag(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial with the lag member's voltage ``V - tau gain du_cmd/dt`` (unchanged when not applied)."""
+        lag = self.amplifier_lag_ or {}
+        if not lag.get("applied"):
+            return df
+        if "u_cmd" not in df:
+            raise ValueError("the model carries the amplifier lag member (the actuator voltage behind the command by "
+                             "tau): the trial needs its u_cmd column")
+        from selfsense.chain.amplifier import lag_column
+
+        return _with_column(df, "V", df["V"].to_numpy(dtype=float)
+                            - float(lag["tau_s"]) * lag_column(df, rig_value(self.rig, "amplifier_gain")))
+
+    def _lag_link(self, trials, meta) -> bool:
+        """The lag member of the voltage link (:func:`selfsense.chain.amplifier.lag_column`): ``tau`` identified
+        jointly with H(q), as the coefficient of the column ``gain du_cmd/dt`` among the extra columns of the selected
+        form's fit on the calibration rows (the rows of the fitted chain: leakage, offset drift, the other members);
+        adopted ("auto") where that column lowers the form's blocked-CV error (no hold rows, the same folds) by at
+        least :data:`~selfsense.chain.amplifier.LAG_MIN_GAIN` and ``0 < tau <=``
+        :data:`~selfsense.chain.amplifier.LAG_MAX_S`; "on" wherever tau is in that range. Where adopted, the chain
+        is calibrated again on every trial's ``V - tau gain du_cmd/dt`` (the selection the fit ran: the configured
+        candidates with the blocked CV, or the caller's held form) and this estimator takes that state. Returns
+        whether it was adopted."""
+        from selfsense.chain.amplifier import LAG_MAX_R2, LAG_MAX_S, LAG_MIN_GAIN, lag_column, lag_r2
+        from selfsense.hysteresis.models import fit_stride
+        from selfsense.hysteresis.models.select import select_h_model, stacked_design
+
+        info = self._start_member("amplifier_lag", "auto")
+        mode = info["mode"]
+        if mode == "off":
+            info["note"] = "amplifier lag member off (config amplifier_lag: off or member forced off)"
+            return False
+        form = self.selected_form()
+        try:
+            gain = float(rig_value(self.rig, "amplifier_gain"))
+        except (KeyError, AttributeError, TypeError):
+            gain = float("nan")
+        if not form or any("u_cmd" not in df for df in trials.values()) or not gain > 0:
+            info["note"] = ("not assessed: " + ("no H(q) form selected by the blocked CV (h_model auto)" if not form
+                                                else "no u_cmd column or amplifier gain"))
+            return False
+        try:
+            meta_i = meta.set_index("trial") if "trial" in meta.columns else meta
+            cal, _ = self._calibration_set(trials, meta_i)
+            linked = {t: self._with_links(trials[t]) for t in cal.index}
+            p = _rig_params(self.rig)
+            slope = 1.0 / (p["n_A"] * p["C_p"])
+            qs, ys, ex, free, names, _ = self._rows_at(linked, cal, slope, self.leakage_s_, self.offset_drift_)
+            dt = float(np.median([_trial_dt(linked[n]) for n in names]))
+            cols = [lag_column(linked[n], gain)[linked[n]["relay"].to_numpy() < 0.5] for n in names]
+            ex1 = [np.column_stack([e, w]) for e, w in zip(ex, cols)]
+            k = max(4, fit_stride([len(q) for q in qs]))
+            r2 = lag_r2(stacked_design(_reference_h(), qs, ys, dt, ex, k)[0], np.concatenate([w[::k] for w in cols]))
+            info["column_r2"] = r2
+            if r2 > LAG_MAX_R2 and mode != "on":   # not separable: the blocked CV is not run
+                info["note"] = (f"{r2 * 100:.1f} % of the lag column reproduced by a rate-independent operator on the "
+                                f"calibration rows: not applied (the calibration does not separate a lag from the "
+                                f"hysteresis, e.g. sines at one rate; a drive with holds or another rate would; needs "
+                                f"<= {LAG_MAX_R2 * 100:g} %)")
+                return False
+            nb = int(self.config.cv_blocks)
+            s0 = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=form, n_blocks=nb, trial_names=names)
+            s1 = select_h_model(qs, ys, dt, extras=ex1, free=free, candidates=form, n_blocks=nb, trial_names=names)
+        except Exception as exc:   # noqa: BLE001 -- evidence that cannot be computed leaves the chain without the member
+            info["note"] = f"amplifier lag member not assessed ({type(exc).__name__}: {exc})"
+            self.fit_report_.setdefault("warnings", []).append(info["note"])
+            return False
+        r0 = next(r for r in s0.table if r["selected"])
+        r1 = next(r for r in s1.table if r["selected"])
+        cv0, cv1 = float(r0["cv_rms_mean_v"]), float(r1["cv_rms_mean_v"])
+        tau = float(s1.extra_coef[-1]) if len(s1.extra_coef) == ex1[0].shape[1] else float("nan")
+        gain_cv = 1.0 - cv1 / cv0 if cv0 > 0 else 0.0
+        in_range = bool(np.isfinite(tau) and 0.0 < tau <= LAG_MAX_S)
+        separable = bool(r2 <= LAG_MAX_R2)
+        supported = bool(in_range and separable and gain_cv >= LAG_MIN_GAIN and r1["label"] == r0["label"])
+        info.update({"tau_s": tau, "form": r1["label"], "cv_rms_v_without": cv0, "cv_rms_v_with": cv1,
+                     "cv_gain": gain_cv, "column_r2": r2, "supported": supported})
+        what = (f"lag column on {r1['label']}: tau {tau * 1e3:.3g} ms, blocked-CV error {cv0:.4g} -> {cv1:.4g} V "
+                f"({gain_cv * 100:+.1f} %), {r2 * 100:.1f} % of the column reproduced by a rate-independent operator "
+                f"on the calibration rows")
+        if not (supported or (mode == "on" and in_range)):
+            why = ("the calibration does not separate a lag from the hysteresis (sines at one rate: a drive with "
+                   f"holds or another rate would; needs <= {LAG_MAX_R2 * 100:g} %)" if not separable else
+                   f"needs 0 < tau <= {LAG_MAX_S * 1e3:g} ms and a gain of at least {LAG_MIN_GAIN * 100:g} %")
+            info["note"] = what + f": not applied ({why})"
+            return False
+        corrected = {t: _with_column(df, "V", df["V"].to_numpy(dtype=float) - tau * lag_column(df, gain))
+                     for t, df in trials.items()}
+        cands, cv = (self.h_candidates, True) if self.h_selection_cv else (form, False)
+        est = type(self)(config=self.config, rig=self.rig,
+                         members={**dict(self.members or {}), "amplifier_lag": "off"},
+                         h_candidates=cands, h_selection_cv=cv, h_selection_prune=self.h_selection_prune,
+                         leakage_search_any_gauge=self.leakage_search_any_gauge)
+        try:
+            est.fit(corrected, meta)
+        except Exception as exc:   # noqa: BLE001 -- a failed recalibration leaves the chain without the member
+            info["note"] = what + f": not applied, the recalibration failed ({type(exc).__name__}: {exc})"
+            self.fit_report_.setdefault("warnings", []).append(info["note"])
+            return False
+        self._take_fitted_state(est)
+        info.update({"applied": True, "source": "forced" if mode == "on" else "calibration rows",
+                     "note": what + ": applied"})
+        self.amplifier_lag_ = info
+        self.fit_report_["amplifier_lag"] = info
+        return True
 
     def _voltage_observed(self, df: pd.DataFrame) -> np.ndarray:
         """Samples whose V is observed (off the current plateau when the amplifier member is applied): the rows of the
@@ -1693,10 +1831,16 @@ class SelfSensingEstimator:
         return _eval_h(self.hysteresis_, Q, _trial_dt(df))
 
     def fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
-        """Regress the sensing coefficients (:meth:`_fit_coefficients`), then decide the charge link's temperature
-        member (:meth:`_temperature_link`), which calibrates the whole chain again on the corrected charges where it
-        is adopted."""
+        """Regress the sensing coefficients (:meth:`_fit_coefficients`), then decide the voltage link's lag member
+        (:meth:`_lag_link`) and the charge link's temperature member (:meth:`_temperature_link`); each calibrates the
+        whole chain again on its corrected signals where it is adopted (the lag's recalibration decides the
+        temperature member itself)."""
         self._fit_coefficients(trials, meta)
+        if (self.amplifier_lag_ or {}).get("applied"):
+            # H(q) shared from a chain calibrated on the lag-corrected voltage (fitted_copy): the lag stays with it
+            return self._temperature_link(trials, meta)
+        if self._lag_link(trials, meta):
+            return self   # the chain calibrated again on the lag-corrected voltage (its own temperature link ran)
         return self._temperature_link(trials, meta)
 
     def _fit_coefficients(self, trials: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> "SelfSensingEstimator":
@@ -1917,16 +2061,10 @@ class SelfSensingEstimator:
         where the first trend implies a scale change of at least
         :data:`~selfsense.chain.temperature.MIN_CAMPAIGN_CHANGE` over the campaign; "on" wherever the trend is
         identified. Where adopted, the fitted state is that of the chain calibrated on the corrected charges."""
-        import dataclasses as dc
-
         from selfsense.chain import temperature as tm
 
-        mode = self._member_modes()["temperature"]
-        if mode == "auto" and getattr(self.config, "temperature", "off") == "off":
-            mode = "off"
-        info: dict = {"mode": mode, "applied": False}
-        self.temperature_ = info
-        self.fit_report_["temperature"] = info
+        info = self._start_member("temperature", "off")
+        mode = info["mode"]
         if mode == "off":
             info["note"] = "temperature member off (config temperature: off or member forced off)"
             return self
@@ -1964,9 +2102,7 @@ class SelfSensingEstimator:
             info["note"] = f"temperature member not applied: the recalibration failed ({type(exc).__name__}: {exc})"
             self.fit_report_.setdefault("warnings", []).append(info["note"])
             return self
-        for f in dc.fields(self):
-            if not f.init:
-                setattr(self, f.name, getattr(est, f.name))
+        self._take_fitted_state(est)
         info.update({"applied": True, "source": "forced" if mode == "on" else "free- and blocked-tip anchors",
                      "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": abs(b) * max(
                          len(names) - 1, 1), "scales": scales,
@@ -2347,6 +2483,7 @@ class SelfSensingEstimator:
             "stress": dict(self.stress_),
             "tip_creep": dict(self.tip_creep_),
             "temperature": dict(self.temperature_),
+            "amplifier_lag": dict(self.amplifier_lag_),
             "voltage_hysteresis": (_h_to_dict(self.voltage_hysteresis_) if self.voltage_hysteresis_ is not None
                                    else None),
         }
@@ -2375,5 +2512,6 @@ class SelfSensingEstimator:
         est.stress_ = dict(d.get("stress") or {})
         est.tip_creep_ = dict(d.get("tip_creep") or {})
         est.temperature_ = dict(d.get("temperature") or {})
+        est.amplifier_lag_ = dict(d.get("amplifier_lag") or {})
         est.voltage_hysteresis_ = _h_from_dict(d["voltage_hysteresis"]) if d.get("voltage_hysteresis") else None
         return est

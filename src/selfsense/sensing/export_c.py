@@ -5,7 +5,8 @@ SelfSensingStream` for one model at one sample time, with every parameter as a `
 with 17 significant digits:
 
 1. front: SI conversion, in-amp offset from the first relay segment, trapezoidal charge reset by the relay
-   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the quantiser, absorption and leakage members;
+   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the voltage link's lag member (``V - tau gain du/dt``, the backward
+   difference over the sample period), the quantiser, absorption and leakage members;
 2. H(Q) of any model the estimator holds: the registry's ``linear``, ``pi``, ``preisach`` (the incremental grid of
    ``hysteresis.models._grid``), ``ri`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11, 15-16), ``duhem``, ``modified_pi``
    (Kuhnen's operator, thesis eqs. 29-42, in the sign / linear gauge) and the thesis identification's ``GaugedH``,
@@ -129,7 +130,7 @@ _HEADER = """/* {name}.h: self-sensing estimator exported by selfsense {version}
 #define SS_DT {dt}
 {sizes}
 typedef struct {{
-    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off, da_y, m_last, mcsum, mbase;
+    double t_n, vs_last, csum, base, v_last, icsum, ibase, off_sum, off_n, off, da_y, m_last, mcsum, mbase, u_last;
     int off_mode;           /* 0 waiting for the relay, 1 averaging it, 2 offset known */
     double dx_dc, f_dc;     /* sliding DC offsets */
 {fields}}} ss_state;
@@ -145,7 +146,7 @@ void ss_init(ss_state *s)
 {
     int i;
     s->t_n = 0.0; s->vs_last = 0.0; s->csum = 0.0; s->base = 0.0; s->v_last = 0.0; s->icsum = 0.0; s->ibase = 0.0;
-    s->da_y = 0.0; s->m_last = 0.0; s->mcsum = 0.0; s->mbase = 0.0;
+    s->da_y = 0.0; s->m_last = 0.0; s->mcsum = 0.0; s->mbase = 0.0; s->u_last = 0.0;
     s->off_sum = 0.0; s->off_n = 0.0; s->off = OFF0; s->off_mode = OFF_MODE0;
     s->dx_dc = 0.0; s->f_dc = 0.0;
 #if CR_N > 0
@@ -165,6 +166,7 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     shorted = relay == 1;
     Vs = v_shunt / INAMP;
     V = GAIN * u_cmd - Vs;
+    if (LAG_K != 0.0 && s->t_n > 0.0) V = V - LAG_K * (u_cmd - s->u_last) / SS_DT;  /* lag member: V - tau gain du/dt */
     if (s->off_mode == 0) {
         if (!shorted) return SS_ERR_NO_RELAY;
         s->off_mode = 1; s->off_sum = Vs; s->off_n = 1.0;
@@ -189,7 +191,7 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
         q = q - DA_C * s->da_y;
     }
     if (G_LEAK != 0.0) q = q - G_LEAK * (shorted ? 0.0 : s->icsum - s->ibase);
-    s->vs_last = Vs; s->v_last = V; s->m_last = mk; s->t_n += 1.0;
+    s->vs_last = Vs; s->v_last = V; s->u_last = u_cmd; s->m_last = mk; s->t_n += 1.0;
     st = h_step(s, q, &VH);
     if (st != SS_OK) return st;
     Vp = V - VH;
@@ -513,6 +515,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     cfg, c = est.config, est.coef_
     ab = getattr(est, "absorption_", None) or {}
     qz = getattr(est, "quantiser_", None) or {}
+    lag = getattr(est, "amplifier_lag_", None) or {}
     h = _h_spec(est.hysteresis_, float(dt))
     # the load link's creep member (selfsense.chain.creep): its lags at the export's sample period
     cr = getattr(est, "tip_creep_", None) or {}
@@ -526,6 +529,8 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     consts = {
         "R_SHUNT": rig_value(rig, "shunt_resistance_ohm"), "INAMP": rig_value(rig, "inamp_gain"),
         "GAIN": rig_value(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
+        # the voltage link's lag member (chain.amplifier.lag_column): tau * gain
+        "LAG_K": (float(lag["tau_s"]) * rig_value(rig, "amplifier_gain")) if lag.get("applied") else 0.0,
         "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
         "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,

@@ -7,7 +7,9 @@ each carry their state (O(1) memory per sample):
 
 1. **Front** (one compiled loop, :func:`front_kernel`): SI conversion (docs/data_format.md)
    ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``, actuator voltage ``V = V_c - V_s``
-   (``000_18d138f03f1777c3.txt`` eq. (56)); charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal
+   (``000_18d138f03f1777c3.txt`` eq. (56)), less ``tau * amplifier_gain * du_cmd/dt`` (backward difference from the
+   previous sample) where the model carries the voltage link's **lag member** (``tau_s`` in the model JSON's
+   ``amplifier_lag``, ``selfsense.chain.amplifier.lag_column``); charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal
    rule, reset to 0 while ``relay == 1``, written exactly as ``selfsense.signals.charge_from_shunt`` does it (a
    running cumulative sum of the increments minus its value at the last shorted sample, so that the charge is
    bit-identical to the batch ``np.cumsum``). The in-amp offset is the mean of ``V_s`` over the FIRST shorted
@@ -66,11 +68,11 @@ __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "
 
 # ---- front state (float64) ------------------------------------------------------------------------------------
 (_T_LAST, _VS_LAST, _CSUM, _BASE, _NSEEN, _OFF_MODE, _OFF_SUM, _OFF_N, _OFF, _V_LAST, _ICSUM, _IBASE,
- _DA_Y, _M_LAST, _MCSUM, _MBASE) = range(16)
-_NS_FRONT = 16
+ _DA_Y, _M_LAST, _MCSUM, _MBASE, _U_LAST) = range(17)
+_NS_FRONT = 17
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- front parameters
-_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH, _F_TS = range(9)
+_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH, _F_TS, _F_LAG = range(10)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 _NS_BACK = 2
@@ -147,6 +149,13 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         shorted = rk == 1.0
         Vs = v[k] / P[_F_INAMP]
         V = P[_F_GAIN] * u[k] - Vs
+        kl = P[_F_LAG]
+        if kl != 0.0 and S[_NSEEN] > 0.0:
+            # the voltage link's lag member: V - tau gain du/dt, the backward difference over the sample interval
+            # (chain.amplifier.lag_column; 0 at the first sample)
+            h = (t[k] - S[_T_LAST]) if use_t else dt
+            if h > 0.0:
+                V = V - kl * (u[k] - S[_U_LAST]) / h
         # in-amp offset from the first shorted segment (signals.relay_offset)
         mode = S[_OFF_MODE]
         if mode == _OFF_WAIT:
@@ -206,6 +215,7 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         t_out[k] = t_last
         S[_VS_LAST] = Vs
         S[_V_LAST] = V
+        S[_U_LAST] = u[k]
         S[_NSEEN] += 1.0
         q_out[k] = q
         V_out[k] = V
@@ -850,7 +860,10 @@ class SelfSensingStream:
             warnings.warn("SelfSensingStream: the model carries the temperature member and no trial was named: the "
                           "charge is taken at the calibration's scale (pass trial= a trial of the fitted trials.csv)",
                           stacklevel=2)
-        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale])
+        # the voltage link's lag member (chain.amplifier.lag_column): tau * gain [V s per command volt]
+        lag = getattr(estimator, "amplifier_lag_", None) or {}
+        k_lag = float(lag["tau_s"]) * gain if lag.get("applied") else 0.0
+        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale, k_lag])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
