@@ -1728,9 +1728,11 @@ class SelfSensingEstimator:
         """The lag member of the voltage link (:func:`selfsense.chain.amplifier.lag_column`): ``tau`` identified
         jointly with H(q), as the coefficient of the column ``gain du_cmd/dt`` among the extra columns of the selected
         form's fit on the calibration rows (the rows of the fitted chain: leakage, offset drift, the other members);
-        adopted ("auto") where that column lowers the form's blocked-CV error (no hold rows, the same folds) by at
-        least :data:`~selfsense.chain.amplifier.LAG_MIN_GAIN` and ``0 < tau <=``
-        :data:`~selfsense.chain.amplifier.LAG_MAX_S`; "on" wherever tau is in that range. Where adopted, the chain
+        adopted ("auto") where the calibration separates the column from the hysteresis (at most
+        :data:`~selfsense.chain.amplifier.LAG_MAX_R2` of it reproduced by the reference operator's design,
+        :func:`~selfsense.chain.amplifier.lag_r2`; otherwise the blocked CV is not run), that column lowers the form's
+        blocked-CV error (no hold rows, the same folds) by at least :data:`~selfsense.chain.amplifier.LAG_MIN_GAIN`
+        and ``0 < tau <=`` :data:`~selfsense.chain.amplifier.LAG_MAX_S`; "on" wherever tau is in that range. Where adopted, the chain
         is calibrated again on every trial's ``V - tau gain du_cmd/dt`` (the selection the fit ran: the configured
         candidates with the blocked CV, or the caller's held form) and this estimator takes that state. Returns
         whether it was adopted."""
