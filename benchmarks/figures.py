@@ -63,6 +63,9 @@ DATES = {
     "whole_device_lag_gate_fresh70": "2026-12-05",
     "stage_chain_lag_gate_fresh1000": "2026-12-05",
     "whole_device_lag_off_fresh70": "2026-12-05",
+    "whole_device_duhem_before_fresh72": "2026-12-05",
+    "whole_device_duhem_joint_fresh72": "2026-12-05",
+    "whole_device_duhem_joint_fresh70": "2026-12-05",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -75,6 +78,7 @@ DATES = {
     "gap_tip_20261214": "2026-12-04",
     "gap_tip_20261216": "2026-12-05",
     "gap_tip_20261217": "2026-12-05",
+    "gap_tip_20261218": "2026-12-05",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -199,6 +203,7 @@ COMMANDS = {
     "gap_tip_20261214": "selfsense gap blind --tip --n 80 --seed 20261214 --jobs 1 --out benchmarks/gap_tip/seed_20261214",
     "gap_tip_20261216": "selfsense gap blind --tip --n 80 --seed 20261216 --jobs 1 --out benchmarks/gap_tip/seed_20261216",
     "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
+    "gap_tip_20261218": "selfsense gap blind --tip --n 80 --seed 20261218 --jobs 1 --out benchmarks/gap_tip/seed_20261218",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -287,6 +292,14 @@ COMMANDS = {
     "stage_chain_lag_gate_fresh1000": "python benchmarks/stage_chain.py devices --seeds 1000-1002 --hold-s 0 "
                                       "--out benchmarks/stage_chain/lag_gate_fresh1000 (resumed from a copy of "
                                       "lag_fresh1000 without the five devices that had adopted the member)",
+    "whole_device_duhem_before_fresh72": "selfsense devices bench --n 2 --first-seed 72 --jobs 1 --protocol thesis "
+                                         "--randomise device --out "
+                                         "benchmarks/cross_device/whole_device/duhem_before_fresh72 (the code before "
+                                         "the Duhem map's joint hold search)",
+    "whole_device_duhem_joint_fresh72": "selfsense devices bench --n 2 --first-seed 72 --jobs 1 --protocol thesis "
+                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh72",
+    "whole_device_duhem_joint_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 1 --protocol thesis "
+                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh70",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -450,6 +463,9 @@ WHOLE_QZB = "benchmarks/cross_device/whole_device/thesis_quantiser_bound"
 WHOLE_LAG = "benchmarks/cross_device/whole_device/lag_fresh70"
 WHOLE_LAG_OFF = "benchmarks/cross_device/whole_device/lag_off_fresh70"
 WHOLE_LAG_GATE = "benchmarks/cross_device/whole_device/lag_gate_fresh70"
+WHOLE_DUHEM_BEFORE72 = "benchmarks/cross_device/whole_device/duhem_before_fresh72"
+WHOLE_DUHEM_JOINT72 = "benchmarks/cross_device/whole_device/duhem_joint_fresh72"
+WHOLE_DUHEM_JOINT70 = "benchmarks/cross_device/whole_device/duhem_joint_fresh70"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -620,13 +636,34 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_GATE}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, seeds 70-71 (seen once), the "
-                                       "amplifier lag member with its separability gate (current code)",
-                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"])
+                                       "amplifier lag member with its separability gate (before the Duhem map's joint "
+                                       "hold search)",
+                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"],
+                                       history=True)
                + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
                                        "lag member forced off", COMMANDS["whole_device_lag_off_fresh70"],
                                        DATES["whole_device_lag_off_fresh70"], history=True)
                if (ROOT / WHOLE_LAG / "cross_device.csv").exists() else [])
+            # the Duhem map's joint hold search (docs/method.md 6b'): first contact on fresh seeds 72-73 with the code
+            # before it beside, and on seeds 70-71 (seen by the lag member's scoring, not by this change)
+            + (_device_table_figures(f"{WHOLE_DUHEM_JOINT72}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 72-73, the Duhem "
+                                     "map's joint hold search (current code)",
+                                     COMMANDS["whole_device_duhem_joint_fresh72"],
+                                     DATES["whole_device_duhem_joint_fresh72"])
+               + _device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 72-73, the code "
+                                       "before the Duhem map's joint hold search",
+                                       COMMANDS["whole_device_duhem_before_fresh72"],
+                                       DATES["whole_device_duhem_before_fresh72"], history=True)
+               if (ROOT / WHOLE_DUHEM_JOINT72 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, seeds 70-71, the Duhem map's "
+                                     "joint hold search (current code)",
+                                     COMMANDS["whole_device_duhem_joint_fresh70"],
+                                     DATES["whole_device_duhem_joint_fresh70"])
+               if (ROOT / WHOLE_DUHEM_JOINT70 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
@@ -801,7 +838,9 @@ def _generations(entries: list[tuple[str, str, str]], marker: str) -> list[tuple
 TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(before 2026-12-03) ",
                   "gap_tip_20261213": "(amplifier against the effect-free twin) ",
                   "gap_tip_20261214": "(before the temperature member) ",
-                  "gap_tip_20261216": "(before the temperature trend refit held the form) "}
+                  "gap_tip_20261216": "(before the temperature trend refit held the form) ",
+                  "gap_tip_20261217_160": "(before the lag member) ",
+                  "gap_tip_20261218": "(before the Duhem joint hold search) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -867,7 +906,11 @@ def gap_figures() -> list[Fig]:
          "the seed-20261217 rows are the current code"),
         ("benchmarks/gap_tip/seed_20261217", "gap_tip_20261217",
          "; the first contact of this code, its first 80 cases; the 160-case rows of the same seed follow"),
-        ("benchmarks/gap_tip/seed_20261217_160", "gap_tip_20261217_160", ""),
+        ("benchmarks/gap_tip/seed_20261217_160", "gap_tip_20261217_160",
+         "; made before the amplifier lag member (2026-12-05); the seed-20261218 rows are the current code"),
+        ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218",
+         "; the first contact of the amplifier lag member's code, made before the Duhem map's joint hold search "
+         "(2026-12-05, which changes the Duhem candidate of a case's H(q) selection)"),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
