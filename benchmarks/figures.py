@@ -294,12 +294,13 @@ COMMANDS = {
                                       "lag_fresh1000 without the five devices that had adopted the member)",
     "whole_device_duhem_before_fresh72": "selfsense devices bench --n 2 --first-seed 72 --jobs 1 --protocol thesis "
                                          "--randomise device --out "
-                                         "benchmarks/cross_device/whole_device/duhem_before_fresh72 (the code before "
-                                         "the Duhem map's joint hold search)",
+                                         "benchmarks/cross_device/whole_device/duhem_before_fresh72",
     "whole_device_duhem_joint_fresh72": "selfsense devices bench --n 2 --first-seed 72 --jobs 1 --protocol thesis "
-                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh72",
+                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh72 "
+                                        "(with the rejected joint hold search of the Duhem map)",
     "whole_device_duhem_joint_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 1 --protocol thesis "
-                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh70",
+                                        "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh70 "
+                                        "(with the rejected joint hold search of the Duhem map)",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -636,33 +637,31 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_GATE}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, seeds 70-71 (seen once), the "
-                                       "amplifier lag member with its separability gate (before the Duhem map's joint "
-                                       "hold search)",
-                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"],
-                                       history=True)
+                                       "amplifier lag member with its separability gate (current code)",
+                                       COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
                                        "lag member forced off", COMMANDS["whole_device_lag_off_fresh70"],
                                        DATES["whole_device_lag_off_fresh70"], history=True)
                if (ROOT / WHOLE_LAG / "cross_device.csv").exists() else [])
-            # the Duhem map's joint hold search (docs/method.md 6b'): first contact on fresh seeds 72-73 with the code
-            # before it beside, and on seeds 70-71 (seen by the lag member's scoring, not by this change)
+            # a rejected change, the Duhem map's joint hold search (docs/method.md 6b'): its first contact on fresh seeds
+            # 72-73 with the current code beside it, and on seeds 70-71; not in the current code
             + (_device_table_figures(f"{WHOLE_DUHEM_JOINT72}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 72-73, the Duhem "
-                                     "map's joint hold search (current code)",
+                                     "map's joint hold search (rejected, not in the current code)",
                                      COMMANDS["whole_device_duhem_joint_fresh72"],
-                                     DATES["whole_device_duhem_joint_fresh72"])
+                                     DATES["whole_device_duhem_joint_fresh72"], history=True)
                + _device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
-                                       "whole-device randomisation, thesis calibration, fresh seeds 72-73, the code "
-                                       "before the Duhem map's joint hold search",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 72-73 (current "
+                                       "code)",
                                        COMMANDS["whole_device_duhem_before_fresh72"],
-                                       DATES["whole_device_duhem_before_fresh72"], history=True)
+                                       DATES["whole_device_duhem_before_fresh72"])
                if (ROOT / WHOLE_DUHEM_JOINT72 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, seeds 70-71, the Duhem map's "
-                                     "joint hold search (current code)",
+                                     "joint hold search (rejected, not in the current code)",
                                      COMMANDS["whole_device_duhem_joint_fresh70"],
-                                     DATES["whole_device_duhem_joint_fresh70"])
+                                     DATES["whole_device_duhem_joint_fresh70"], history=True)
                if (ROOT / WHOLE_DUHEM_JOINT70 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
@@ -839,8 +838,7 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261213": "(amplifier against the effect-free twin) ",
                   "gap_tip_20261214": "(before the temperature member) ",
                   "gap_tip_20261216": "(before the temperature trend refit held the form) ",
-                  "gap_tip_20261217_160": "(before the lag member) ",
-                  "gap_tip_20261218": "(before the Duhem joint hold search) "}
+                  "gap_tip_20261217_160": "(before the lag member) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -908,9 +906,7 @@ def gap_figures() -> list[Fig]:
          "; the first contact of this code, its first 80 cases; the 160-case rows of the same seed follow"),
         ("benchmarks/gap_tip/seed_20261217_160", "gap_tip_20261217_160",
          "; made before the amplifier lag member (2026-12-05); the seed-20261218 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218",
-         "; the first contact of the amplifier lag member's code, made before the Duhem map's joint hold search "
-         "(2026-12-05, which changes the Duhem candidate of a case's H(q) selection)"),
+        ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
