@@ -651,12 +651,13 @@ def cross_device_figures() -> list[Fig]:
                                      "map's joint hold search (rejected, not in the current code)",
                                      COMMANDS["whole_device_duhem_joint_fresh72"],
                                      DATES["whole_device_duhem_joint_fresh72"], history=True)
-               + _device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
-                                       "whole-device randomisation, thesis calibration, fresh seeds 72-73 (current "
-                                       "code)",
-                                       COMMANDS["whole_device_duhem_before_fresh72"],
-                                       DATES["whole_device_duhem_before_fresh72"])
                if (ROOT / WHOLE_DUHEM_JOINT72 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 72-73 (current "
+                                     "code)",
+                                     COMMANDS["whole_device_duhem_before_fresh72"],
+                                     DATES["whole_device_duhem_before_fresh72"])
+               if (ROOT / WHOLE_DUHEM_BEFORE72 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, seeds 70-71, the Duhem map's "
                                      "joint hold search (rejected, not in the current code)",
