@@ -273,3 +273,48 @@ def test_equation_error_start_equals_the_increments_one_at_a_time():
     assert len(rowsA) > 100 and np.any(A[:, :nb] != 0) and np.any(A[:, nb:] != 0)
     ref = ridge_lstsq(A, np.asarray(rowsb), np.ones(A.shape[1], bool), 1e-8)
     assert m._equation_error(us, ve, masks).tobytes() == ref.tobytes()
+
+
+def test_hold_rows_join_the_map_search():
+    """Sine calibration, holds of another trial (V and Q only): the Duhem map and its creep bank identified jointly
+    on both predict the relaxation of a third trial's holds, where fitting the map on the sine first and the creep
+    bank on the holds after it leaves the hold error at a good part of the creep (the map keeps the loop width that
+    the sine gave the creep)."""
+    from selfsense.hysteresis.models._grid import relaxation_bank
+    from selfsense.hysteresis.models.holds import HoldSet, hold_residual
+    from selfsense.hysteresis.operators import play_operator
+
+    dt, qref, tau, c_creep = 2e-3, 3e-4, 0.3, 9.0
+
+    def truth(q):
+        u = q / qref
+        P = play_operator(u, [0.1, 0.3])
+        return 60.0 * u + 6.0 * P[:, 0] + 3.0 * P[:, 1] - c_creep * relaxation_bank(u, dt, [tau])[:, 0]
+
+    def holdset(levels, hold_s=3.0, ramp_s=0.2):
+        q, holds, cur = [np.zeros(int(0.5 / dt))], [], 0.0
+        for lv in levels:
+            q.append(np.linspace(cur, lv * qref, int(ramp_s / dt)))
+            a = sum(len(x) for x in q)
+            q.append(np.full(int(hold_s / dt), lv * qref))
+            holds.append((a, a + int(hold_s / dt)))
+            cur = lv * qref
+        q = np.concatenate(q)
+        return HoldSet(qs=[q], ys=[truth(q)], holds=[holds], names=["ops"])
+
+    t = np.arange(int(4.0 / dt)) * dt
+    q = qref * 0.5 * (1 - np.cos(2 * np.pi * 1.0 * t))
+    y = truth(q)
+    fit_holds, test_holds = holdset([0.8, 0.2, 0.6]), holdset([0.9, 0.4, 0.1])
+
+    def hold_rms(m):
+        r, _ = hold_residual(m, test_holds, dt, 10**9)
+        return float(np.sqrt(np.mean(r ** 2)))
+
+    after = DuhemH().fit(q, y, dt, holds=fit_holds)   # the map on the sine, then the linear part on the holds
+    joint = DuhemH(hold_nfev=8).fit(q, y, dt, holds=fit_holds)
+    creep_swing = c_creep * 0.5   # V after a half-range step
+    assert hold_rms(joint) < 0.05 * creep_swing
+    assert hold_rms(joint) < 0.2 * hold_rms(after)
+    assert np.sqrt(np.mean((joint.predict(q, dt) - y) ** 2)) < 0.01 * np.ptp(y)
+    assert joint.fit_report_["n_hold_rows"] > 0

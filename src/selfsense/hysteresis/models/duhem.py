@@ -30,7 +30,15 @@ whole-device Bouc-Wen devices, docs/cross_device.md).
   linear columns (creep, offset, linear term, extra; ridge-augmented for the creep weights) -- variable projection,
   exact because those columns do not depend on c --
   by a trust-region least-squares solver with the exact sensitivities of the discrete map;
-* a small ridge on c (relative to the output range) keeps unidentified directions of the polynomial at zero.
+* a small ridge on c (relative to the output range) keeps unidentified directions of the polynomial at zero;
+* ``hold_nfev > 0`` (a candidate of its own in the selection, ``select.DEFAULT_CANDIDATES``): the reference-free
+  hold rows of every trial (:mod:`selfsense.hysteresis.models.holds`) join the output-error search, continued from
+  the calibration rows' optimum for ``hold_nfev`` evaluations -- the map and the creep bank identified jointly on
+  both. With ``hold_nfev = 0`` the map is fitted on the calibration rows and the holds fit the linear part only; on
+  sine-only calibrations the map then keeps the loop width the sines gave the creep, and the holds of the
+  mixed-drive trials relax 8-16 % more than their own reference-free target says (docs/method.md 6b'). Whether the
+  holds are H's depends on the device (under a tip that creeps they are not), so both variants are candidates and
+  the selection's hold folds decide.
 """
 from __future__ import annotations
 
@@ -79,7 +87,7 @@ class DuhemH:
 
     def __init__(self, degree: int = 3, ridge: float = 1e-7, creep: bool = True,
                  creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, eps: float = 2e-3, max_nfev: int = 30,
-                 creep_ridge: float | None = None):
+                 creep_ridge: float | None = None, hold_nfev: int = 0):
         if int(degree) < 1:
             raise ValueError(f"DuhemH: degree must be >= 1, got {degree!r}")
         if not float(eps) >= 0:
@@ -88,6 +96,11 @@ class DuhemH:
         self.creep_tau_s = tuple(float(t) for t in creep_tau_s) if self.creep else ()
         self.eps, self.max_nfev = float(eps), int(max_nfev)
         self.creep_ridge = None if creep_ridge is None else float(creep_ridge)
+        if int(hold_nfev) < 0:
+            raise ValueError(f"DuhemH: hold_nfev (evaluations of the joint hold search) must be >= 0, got {hold_nfev!r}")
+        #: evaluations of the joint search on the calibration and hold rows, continued from the calibration rows'
+        #: optimum (each runs the map over every hold trial's record); 0: the hold rows fit the linear part only
+        self.hold_nfev = int(hold_nfev)
         self.coef_: np.ndarray | None = None
         self.lin_coef_ = np.zeros(0)
         self.extra_coef_ = np.zeros(0)
@@ -121,8 +134,8 @@ class DuhemH:
         segment, or stacked), fitted without penalty; ``row_mask``: rows (one boolean array per segment, or stacked)
         that enter the objective (blocked cross-validation); ``holds``
         (:class:`~selfsense.hysteresis.models.holds.HoldSet`): the reference-free hold rows of every trial join the
-        linear part (creep bank, offset) once the Duhem map is fitted -- the map is rate-independent, so a hold
-        constrains the creep only. ``starts``: parameter vectors of earlier fits of the same form (the fold fits of
+        linear part (creep bank, offset) once the Duhem map is fitted, and with ``hold_nfev > 0`` the map's search
+        too (module docstring). ``starts``: parameter vectors of earlier fits of the same form (the fold fits of
         the blocked CV, :func:`selfsense.hysteresis.models.select._final_fit`); the one with the lowest objective
         is a third start of the search. Runs with one BLAS thread: the matrices are small (<= MAX_OE_ROWS x a few
         dozen), and threads contending for the cores made it ten times slower."""
@@ -141,6 +154,29 @@ class DuhemH:
             return self._linear_cols(u, dt, s), self._run(u, c, s)[0]
 
         return difference_rows(holds, n_cal, n_cols, per_trial)[:2]
+
+    def _hold_map_rows(self, holds, dt: float, n_cal: int, n_cols: int):
+        """The hold rows of the joint search: ``(Lh, yh, run)`` with ``Lh`` the weighted differences of the linear
+        columns (:meth:`_hold_rows`' layout), ``yh`` those of the target, and ``run(c, want_jac)`` the weighted
+        differences of the map's output within each hold and of its sensitivities to ``c`` (the map run over each
+        hold trial's record from the relaxed state, read on the rows' grid)."""
+        from .holds import _stride_and_weight, difference_rows
+
+        Lh, yh, _ = difference_rows(holds, n_cal, n_cols,
+                                    lambda i, s: (self._linear_cols(self._u(holds.qs[i]), dt, s), None))
+        s, w = _stride_and_weight(holds, n_cal)
+        rows = holds.rows(s)
+        us = {i: self._u(holds.qs[i]) for i, _, _, _ in rows}
+        take = [(i, idx // s, a0 // s) for i, idx, a0, _ in rows]
+
+        def run(c, want_jac):
+            out = {i: self._run(u, c, s, want_jac) for i, u in us.items()}
+            V = np.concatenate([w * (out[i][0][j] - out[i][0][j0]) for i, j, j0 in take])
+            if not want_jac:
+                return V, None
+            return V, np.vstack([w * (out[i][1][j] - out[i][1][j0]) for i, j, j0 in take])
+
+        return Lh, yh, run
 
     def _fit(self, q, v, dt, extra, row_mask, holds=None, starts=None) -> "DuhemH":
         from scipy.optimize import least_squares
@@ -183,57 +219,74 @@ class DuhemH:
         pen = np.zeros(L.shape[1], bool)
         pen[:nc] = True
         cr = self.ridge if self.creep_ridge is None else self.creep_ridge
-        La, n_aug = self._ridge_augment(L, pen, cr)
-        Qf, _ = np.linalg.qr(La)
         nb = 2 * n_terms(self.degree)
         lam = np.sqrt(self.ridge * y.size) * (1.0 / self.v_span_)   # c ~ v_span: relative ridge
-        zpad = np.zeros(n_aug)
 
-        def resid_jac(c, want_jac):
-            Vs, Js = [], []
-            for u, r in zip(us, rows):
-                Vk, Jk = self._run(u, c, k, want_jac)
-                Vs.append(Vk[r])
-                if want_jac:
-                    Js.append(Jk[r])
-            e = np.concatenate([y - np.concatenate(Vs), zpad])
-            e = e - Qf @ (Qf.T @ e)
-            if not want_jac:
-                return np.concatenate([e, lam * c]), None
-            J = np.vstack([-np.vstack(Js), np.zeros((n_aug, nb))])
-            J = J - Qf @ (Qf.T @ J)
-            return np.concatenate([e, lam * c]), np.vstack([J, lam * np.eye(nb)])
+        def objective(hl):
+            """``(fun, jac, resid)`` of the search on the calibration rows and, with ``hl``
+            (:meth:`_hold_map_rows`), the hold rows: the linear columns of both projected out together."""
+            Lj, penj, yj = L, pen, y
+            if hl is not None:
+                Lj = np.vstack([np.column_stack([L, np.zeros((len(L), hl[0].shape[1] - L.shape[1]))]), hl[0]])
+                penj = np.concatenate([pen, np.zeros(Lj.shape[1] - L.shape[1], bool)])
+                yj = np.concatenate([y, hl[1]])
+            La, n_aug = self._ridge_augment(Lj, penj, cr)
+            Qf, _ = np.linalg.qr(La)
+            zpad = np.zeros(n_aug)
 
-        # the trust-region loop asks for the Jacobian at the point whose residual it has just evaluated (after each
-        # accepted step): the residual is computed together with the sensitivities (the map's run computes V the
-        # same way with or without them, so the residual has the same bits) and the Jacobian is kept for that call,
-        # instead of running the map over every sample once more
-        # The trust-region steps read the residual f and the Jacobian J only through J^T J, J^T f, J's column norms
-        # and |f|^2, so the search runs on their orthogonal reduction: J = Q R, and the residual becomes
-        # [Q^T f, |(I - Q Q^T) f|] with the Jacobian [R; 0] -- the same quadratic model, the same cost and gradient,
-        # the same column scaling, up to rounding. Each iteration's SVD is then of a (p + 1) x p matrix instead of the
-        # rows' (MAX_OE_ROWS x p): a third of the fit's time on the tip campaign's cases.
-        kept: list = []
+            def resid_jac(c, want_jac):
+                Vs, Js = [], []
+                for u, r in zip(us, rows):
+                    Vk, Jk = self._run(u, c, k, want_jac)
+                    Vs.append(Vk[r])
+                    if want_jac:
+                        Js.append(Jk[r])
+                if hl is not None:
+                    Vh, Jh = hl[2](c, want_jac)
+                    Vs.append(Vh)
+                    if want_jac:
+                        Js.append(Jh)
+                e = np.concatenate([yj - np.concatenate(Vs), zpad])
+                e = e - Qf @ (Qf.T @ e)
+                if not want_jac:
+                    return np.concatenate([e, lam * c]), None
+                J = np.vstack([-np.vstack(Js), np.zeros((n_aug, nb))])
+                J = J - Qf @ (Qf.T @ J)
+                return np.concatenate([e, lam * c]), np.vstack([J, lam * np.eye(nb)])
 
-        def fun(c):
-            f, J = resid_jac(c, True)
-            # the triangular factor of [J | f] holds R, Q^T f and the norm of f's part outside J's range
-            Ra = _qr_r(np.column_stack([J, f]))
-            p = J.shape[1]
-            Rj = np.zeros((p + 1, p))
-            Rj[:min(p, Ra.shape[0])] = Ra[:p, :p]
-            fc = np.zeros(p + 1)
-            fc[:min(p + 1, Ra.shape[0])] = Ra[:p + 1, p]
-            kept[:] = [np.array(c, dtype=float), Rj]
-            return fc
+            # the trust-region loop asks for the Jacobian at the point whose residual it has just evaluated (after
+            # each accepted step): the residual is computed together with the sensitivities (the map's run computes
+            # V the same way with or without them, so the residual has the same bits) and the Jacobian is kept for
+            # that call, instead of running the map over every sample once more.
+            # The trust-region steps read the residual f and the Jacobian J only through J^T J, J^T f, J's column
+            # norms and |f|^2, so the search runs on their orthogonal reduction: J = Q R, and the residual becomes
+            # [Q^T f, |(I - Q Q^T) f|] with the Jacobian [R; 0] -- the same quadratic model, the same cost and
+            # gradient, the same column scaling, up to rounding. Each iteration's SVD is then of a (p + 1) x p matrix
+            # instead of the rows' (MAX_OE_ROWS x p): a third of the fit's time on the tip campaign's cases.
+            kept: list = []
 
-        def jac(c):
-            if not (kept and np.array_equal(kept[0], c)):
-                fun(c)
-            J = kept[1]
-            kept.clear()
-            return J
+            def fun(c):
+                f, J = resid_jac(c, True)
+                # the triangular factor of [J | f] holds R, Q^T f and the norm of f's part outside J's range
+                Ra = _qr_r(np.column_stack([J, f]))
+                p = J.shape[1]
+                Rj = np.zeros((p + 1, p))
+                Rj[:min(p, Ra.shape[0])] = Ra[:p, :p]
+                fc = np.zeros(p + 1)
+                fc[:min(p + 1, Ra.shape[0])] = Ra[:p + 1, p]
+                kept[:] = [np.array(c, dtype=float), Rj]
+                return fc
 
+            def jac(c):
+                if not (kept and np.array_equal(kept[0], c)):
+                    fun(c)
+                J = kept[1]
+                kept.clear()
+                return J
+
+            return fun, jac, resid_jac
+
+        fun, jac, resid_jac = objective(None)
         # two starts (the equation-error estimate and g = 0, a flat state), and a third where earlier fits of the
         # same form are given (``starts``): the output-error objective has local minima; the lowest one is kept
         first = [c0, np.zeros(nb)]
@@ -246,6 +299,17 @@ class DuhemH:
             if best is None or sol.cost < best.cost:
                 best = sol
         sol = best
+        if holds and self.hold_nfev > 0:
+            # the hold rows (reference-free, every trial) join the map's objective, from the calibration rows'
+            # optimum (continuation): their linear columns (creep bank, offset, hold-only columns) are projected out
+            # with the calibration rows', and the map's own change within each hold (q moves while H relaxes) is a
+            # residual of the same search -- the map and the creep bank identified jointly on both. With the map
+            # fitted on the calibration rows alone and only the creep bank on the holds after it, the map kept the
+            # loop width that the sines had given the creep
+            fun_h, jac_h, _ = objective(self._hold_map_rows(holds, dt, y.size, L.shape[1]))
+            sol_h = least_squares(fun_h, sol.x, jac=jac_h, method="trf", x_scale="jac", max_nfev=self.hold_nfev)
+            sol_h.nfev = int(best.nfev + sol_h.nfev)
+            sol = sol_h
         c = sol.x
         Vall = np.concatenate([self._run(u, c, k)[0][r] for u, r in zip(us, rows)])
         n_hold = 0
@@ -372,7 +436,8 @@ class DuhemH:
     def _params(self) -> dict:
         return {"degree": self.degree, "ridge": self.ridge, "creep": self.creep, "creep_tau_s": list(self.creep_tau_s),
                 "eps": self.eps, "max_nfev": self.max_nfev, **({} if self.creep_ridge is None else
-                                                               {"creep_ridge": self.creep_ridge})}
+                                                               {"creep_ridge": self.creep_ridge}),
+                **({"hold_nfev": self.hold_nfev} if self.hold_nfev else {})}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "DuhemH":
@@ -394,4 +459,5 @@ class DuhemH:
         return m
 
     def label(self) -> str:
-        return f"duhem(degree={self.degree}, ridge={self.ridge:g}{', creep' if self.creep else ''})"
+        return (f"duhem(degree={self.degree}, ridge={self.ridge:g}{', creep' if self.creep else ''}"
+                f"{', joint holds' if self.hold_nfev else ''})")

@@ -41,6 +41,7 @@ DEFAULT_CANDIDATES: tuple = (
     ("modified_pi", {"n_play": 12, "n_sup": 6, "n_creep": 3}),
     ("duhem", {"degree": 3, "ridge": 1e-7}),
     ("duhem", {"degree": 3, "ridge": 1e-7, "creep": False}),
+    ("duhem", {"degree": 3, "ridge": 1e-7, "hold_nfev": 8}),
 )
 
 
@@ -499,6 +500,8 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
+    # without hold rows, a form that differs from another candidate only in how it fits them is that candidate
+    candidates = tuple(c for c in candidates if holds or not c[1].get("hold_nfev"))
     qs = [np.asarray(q, float) for q in qs]
     ys = [np.asarray(y, float) for y in ys]
     lengths = [len(q) for q in qs]
