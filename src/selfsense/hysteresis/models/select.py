@@ -500,8 +500,11 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
-    # without hold rows, a form that differs from another candidate only in how it fits them is that candidate
-    candidates = tuple(c for c in candidates if holds or not c[1].get("hold_nfev"))
+    if not holds:
+        # without hold rows, a form that differs from another candidate only in how it fits them is that candidate
+        # (a form held alone, as the chain's member searches pass it, stays: it is then fitted as that twin)
+        plain = [(k, {n: v for n, v in p.items() if n != "hold_nfev"}) for k, p in candidates]
+        candidates = tuple(c for c, t in zip(candidates, plain) if not c[1].get("hold_nfev") or t not in candidates)
     qs = [np.asarray(q, float) for q in qs]
     ys = [np.asarray(y, float) for y in ys]
     lengths = [len(q) for q in qs]
