@@ -698,6 +698,10 @@ class SelfSensingEstimator:
     amplifier_lag_: dict = field(default_factory=dict, init=False)
 
     # ------------------------------------------------------------------ fitting
+    def _without_hold_map(self) -> tuple:
+        """The configured H(q) candidates without the forms whose map is fitted to the hold rows (``hold_nfev``)."""
+        return tuple(c for c in _candidates_for(self.config.h_model, self.config) if not c[1].get("hold_nfev"))
+
     def selected_form(self) -> tuple:
         """The fitted H(q) form as a candidate list for a refit of this estimator's configuration on changed data
         or with a member toggled: ``(("linear", {}), (kind, params))`` -- the straight line the form must beat and
@@ -1875,6 +1879,23 @@ class SelfSensingEstimator:
             self.tip_creep_["taus_s"] = list(taus)
         rows = self._coefficient_rows(cal_trials, cal, taus)
         creep_on = self._tip_creep_decision(creep_mode, rows)
+        if creep_on and not self.h_candidates and any(p.get("hold_nfev") for _, p in self.selected_form()):
+            # under a tip that creeps, the holds' charge is not H's (the creep moves charge through the coupling):
+            # the H(q) form whose map was fitted to the hold rows (the joint hold search, docs/method.md 6b') is
+            # not carried beside the creep member -- H(q) is calibrated again without those candidates and the
+            # coefficients regressed on that chain (the second pass selects none of them: no loop)
+            saved_reuse = self.leakage_search_reuse
+            self.h_candidates = self._without_hold_map()
+            self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
+            try:
+                self.fit_hysteresis(trials, meta)
+                self._fit_coefficients(trials, meta)
+            finally:
+                self.h_candidates, self.leakage_search_reuse = (), saved_reuse
+            self.fit_report_["hysteresis"]["hold_map"] = (
+                "the H(q) form fitted jointly with the hold rows was selected first; H(q) calibrated again without "
+                "the joint hold search beside the load link's creep member (its holds are not H's)")
+            return self
         if creep_on and self.offset_drift_ and self._member_modes()["offset_drift"] == "auto":
             # creep and the offset-drift member both explain a slow mismatch of charge and strain, and the drift's
             # rest-segment estimate assumes the free-tip relation at rest, which creep breaks (a mechanism that loads
@@ -1896,18 +1917,21 @@ class SelfSensingEstimator:
                 self.__dict__.clear()
                 self.__dict__.update(with_drift)
 
-            saved, saved_reuse = self.members, self.leakage_search_reuse
+            saved, saved_reuse, saved_cands = self.members, self.leakage_search_reuse, self.h_candidates
             self.members = {**dict(saved or {}), "offset_drift": "off"}
             # the leakage search reads the calibration inputs only (its reference carries the drift columns either
             # way): this fit's search is reused
             self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
+            if not saved_cands:
+                # the chain it is decided against carries the creep member: no map fitted to the holds (above)
+                self.h_candidates = self._without_hold_map()
             refit_error = None
             try:
                 self.fit_hysteresis(trials, meta)
             except Exception as exc:   # noqa: BLE001 -- any failure of the refit leaves the chain with the drift
                 refit_error = exc
             finally:
-                self.members, self.leakage_search_reuse = saved, saved_reuse
+                self.members, self.leakage_search_reuse, self.h_candidates = saved, saved_reuse, saved_cands
             if refit_error is not None:
                 restore()
                 check = {"cv_rms_m_with_offset_drift": cv_od, "offset_drift_kept": True,
