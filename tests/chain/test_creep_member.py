@@ -184,3 +184,19 @@ def test_offset_drift_re_decided_beside_the_creep_member():
         assert np.array_equal(a["f_hat"].to_numpy(), b["f_hat"].to_numpy(), equal_nan=True)
     t3 = _table3(tr, me, rig, est)
     assert t3["displacement"] < 8.0 and t3["force"] < 3.3, t3      # measured 4.96 / 2.57
+
+
+def test_the_joint_hold_form_is_not_carried_beside_the_creep_member():
+    """An effect-free Bouc-Wen device of the tip protocol whose selection takes the Duhem form fitted jointly with
+    the hold rows (docs/method.md 6b'): with the creep member forced on, H(q) is calibrated again without the joint
+    hold search (under a tip that creeps the holds are not H's), and the report says so; with it off, the joint form
+    stays."""
+    tr, me, rig = simulate_family_case("bouc_wen", 77752332, {}, 6203064, T_CASE, FS_CASE)
+    off = _fit(tr, me, rig, "off")
+    assert any(p.get("hold_nfev") for _, p in off.selected_form())
+    assert "hold_map" not in off.fit_report_["hysteresis"]
+    on = _fit(tr, me, rig, "on")
+    assert on.tip_creep_["applied"]
+    assert on.selected_form() and not any(p.get("hold_nfev") for _, p in on.selected_form())
+    assert "creep member" in on.fit_report_["hysteresis"]["hold_map"]
+    assert on.members == {"tip_creep": "on"} and not on.h_candidates

@@ -318,3 +318,30 @@ def test_hold_rows_join_the_map_search():
     assert hold_rms(joint) < 0.2 * hold_rms(after)
     assert np.sqrt(np.mean((joint.predict(q, dt) - y) ** 2)) < 0.01 * np.ptp(y)
     assert joint.fit_report_["n_hold_rows"] > 0
+
+
+def test_the_joint_hold_candidate_is_left_out_without_holds_unless_held_alone():
+    """Without hold rows the joint-hold form (``hold_nfev``) is its map-first twin: in a list with that twin it is left
+    out of the selection (no second CV of the same fit), and a list that holds it alone (the chain's member searches
+    pass the selected form so) still fits it, as that twin, bit for bit."""
+    from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES, select_h_model
+
+    joint = ("duhem", {"degree": 3, "ridge": 1e-7, "hold_nfev": 8})
+    plain = ("duhem", {"degree": 3, "ridge": 1e-7})
+    assert joint in DEFAULT_CANDIDATES and plain in DEFAULT_CANDIDATES
+    assert DuhemH(hold_nfev=8).label() != DuhemH().label() and "joint holds" in DuhemH(hold_nfev=8).label()
+    with pytest.raises(ValueError, match="hold_nfev"):
+        DuhemH(hold_nfev=-1)
+    dt = 1e-3
+    t = np.arange(3000) * dt
+    q = 1e-4 * np.sin(2 * np.pi * 1.0 * t) * (1 + 0.5 * np.sin(2 * np.pi * 0.13 * t))
+    u = q / 1e-4
+    y = 40.0 * u + 3.0 * np.tanh(4 * u) + 2.0 * np.sign(np.gradient(u)) * (1 - u ** 2)
+    both = select_h_model([q], [y], dt, candidates=(("linear", {}), plain, joint))
+    assert [r["label"] for r in both.table] == ["linear(ridge=0)", DuhemH().label()]
+    alone = select_h_model([q], [y], dt, candidates=(("linear", {}), joint))
+    assert [r["label"] for r in alone.table] == ["linear(ridge=0)", DuhemH(hold_nfev=8).label()]
+    assert alone.table[1]["cv_rms_v"] == both.table[1]["cv_rms_v"]
+    if alone.model.kind == "duhem":
+        assert alone.model.coef_.tobytes() == both.model.coef_.tobytes()
+        assert DuhemH.from_dict(alone.model.to_dict()).hold_nfev == 8
