@@ -66,6 +66,8 @@ DATES = {
     "whole_device_duhem_before_fresh72": "2026-12-05",
     "whole_device_duhem_joint_fresh72": "2026-12-05",
     "whole_device_duhem_joint_fresh70": "2026-12-05",
+    "whole_device_joint_before_fresh74": "2026-12-05",
+    "whole_device_joint_candidate_fresh74": "2026-12-05",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -79,6 +81,7 @@ DATES = {
     "gap_tip_20261216": "2026-12-05",
     "gap_tip_20261217": "2026-12-05",
     "gap_tip_20261218": "2026-12-05",
+    "gap_tip_20261219": "2026-12-05",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -204,6 +207,7 @@ COMMANDS = {
     "gap_tip_20261216": "selfsense gap blind --tip --n 80 --seed 20261216 --jobs 1 --out benchmarks/gap_tip/seed_20261216",
     "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
     "gap_tip_20261218": "selfsense gap blind --tip --n 80 --seed 20261218 --jobs 1 --out benchmarks/gap_tip/seed_20261218",
+    "gap_tip_20261219": "selfsense gap blind --tip --n 80 --seed 20261219 --jobs 1 --out benchmarks/gap_tip/seed_20261219",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -301,6 +305,13 @@ COMMANDS = {
     "whole_device_duhem_joint_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 1 --protocol thesis "
                                         "--randomise device --out benchmarks/cross_device/whole_device/duhem_joint_fresh70 "
                                         "(with the rejected joint hold search of the Duhem map)",
+    "whole_device_joint_before_fresh74": "selfsense devices bench --n 2 --first-seed 74 --jobs 1 --protocol thesis "
+                                         "--randomise device --out "
+                                         "benchmarks/cross_device/whole_device/joint_before_fresh74 (the code before "
+                                         "the joint hold candidate)",
+    "whole_device_joint_candidate_fresh74": "selfsense devices bench --n 2 --first-seed 74 --jobs 1 --protocol thesis "
+                                            "--randomise device --out "
+                                            "benchmarks/cross_device/whole_device/joint_candidate_fresh74",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -467,6 +478,8 @@ WHOLE_LAG_GATE = "benchmarks/cross_device/whole_device/lag_gate_fresh70"
 WHOLE_DUHEM_BEFORE72 = "benchmarks/cross_device/whole_device/duhem_before_fresh72"
 WHOLE_DUHEM_JOINT72 = "benchmarks/cross_device/whole_device/duhem_joint_fresh72"
 WHOLE_DUHEM_JOINT70 = "benchmarks/cross_device/whole_device/duhem_joint_fresh70"
+WHOLE_JOINT_BEFORE74 = "benchmarks/cross_device/whole_device/joint_before_fresh74"
+WHOLE_JOINT_CAND74 = "benchmarks/cross_device/whole_device/joint_candidate_fresh74"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -653,10 +666,10 @@ def cross_device_figures() -> list[Fig]:
                                      DATES["whole_device_duhem_joint_fresh72"], history=True)
                if (ROOT / WHOLE_DUHEM_JOINT72 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
-                                     "whole-device randomisation, thesis calibration, fresh seeds 72-73 (current "
-                                     "code)",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 72-73 (before the "
+                                     "joint hold candidate)",
                                      COMMANDS["whole_device_duhem_before_fresh72"],
-                                     DATES["whole_device_duhem_before_fresh72"])
+                                     DATES["whole_device_duhem_before_fresh72"], history=True)
                if (ROOT / WHOLE_DUHEM_BEFORE72 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, seeds 70-71, the Duhem map's "
@@ -664,6 +677,18 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_duhem_joint_fresh70"],
                                      DATES["whole_device_duhem_joint_fresh70"], history=True)
                if (ROOT / WHOLE_DUHEM_JOINT70 / "cross_device.csv").exists() else [])
+            # the joint hold search as a candidate of the selection (docs/method.md 6b'): its first contact on fresh
+            # seeds 74-75 (current code), the code before it on the same devices beside it
+            + (_device_table_figures(f"{WHOLE_JOINT_BEFORE74}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 74-75, before the "
+                                     "joint hold candidate", COMMANDS["whole_device_joint_before_fresh74"],
+                                     DATES["whole_device_joint_before_fresh74"], history=True)
+               + _device_table_figures(f"{WHOLE_JOINT_CAND74}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 74-75, the joint "
+                                       "hold candidate (its first contact; current code)",
+                                       COMMANDS["whole_device_joint_candidate_fresh74"],
+                                       DATES["whole_device_joint_candidate_fresh74"])
+               if (ROOT / WHOLE_JOINT_CAND74 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
@@ -839,7 +864,8 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261213": "(amplifier against the effect-free twin) ",
                   "gap_tip_20261214": "(before the temperature member) ",
                   "gap_tip_20261216": "(before the temperature trend refit held the form) ",
-                  "gap_tip_20261217_160": "(before the lag member) "}
+                  "gap_tip_20261217_160": "(before the lag member) ",
+                  "gap_tip_20261218": "(before the joint hold candidate) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -907,7 +933,10 @@ def gap_figures() -> list[Fig]:
          "; the first contact of this code, its first 80 cases; the 160-case rows of the same seed follow"),
         ("benchmarks/gap_tip/seed_20261217_160", "gap_tip_20261217_160",
          "; made before the amplifier lag member (2026-12-05); the seed-20261218 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218", ""),
+        ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218",
+         "; made before the joint hold candidate of the H(q) selection (2026-12-05); the seed-20261219 rows are the "
+         "current code"),
+        ("benchmarks/gap_tip/seed_20261219", "gap_tip_20261219", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
