@@ -96,3 +96,49 @@ def test_with_another_thread_running_it_does_not_fork():
     finally:
         stop.set()
         t.join()
+
+
+def test_threaded_workers_keep_one_blas_thread_while_another_leaves_its_own_limit():
+    """In threads, a worker that leaves its own ``threadpool_limits(1)`` block (the Duhem fit's) while another is still
+    inside one must not put the process's BLAS back on several threads under that one (its bits would then depend
+    on timing: the cause of a rare mismatch of the threaded H(q) selection against the serial one). Forced order:
+    worker 0 enters, worker 1 enters, worker 0 leaves, worker 1 reads its BLAS thread count. After the map the
+    count is the one before it."""
+    import time
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def counts():
+        return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        if counts() != [2]:
+            pytest.skip(f"this machine's BLAS runs {counts()} thread(s) at most here: no second thread to race for")
+        e0_in, e1_in, left = threading.Event(), threading.Event(), threading.Event()
+
+        def work(i):
+            if i == 0:
+                with threadpool_limits(limits=1):
+                    e0_in.set()
+                    assert e1_in.wait(30)
+                left.set()
+                return None
+            assert e0_in.wait(30)
+            with threadpool_limits(limits=1):
+                e1_in.set()
+                assert left.wait(30)
+                time.sleep(0.01)
+                return counts()
+
+        stop = threading.Event()
+        t = threading.Thread(target=stop.wait)
+        t.start()
+        try:
+            assert not can_fork()
+            got = fork_map(work, [0, 1], 2, threads_fallback=True)
+        finally:
+            stop.set()
+            t.join()
+        after = counts()
+    assert got[1] == [1], f"worker 1 ran on {got[1]} BLAS threads after worker 0 left its limit"
+    assert after == [2]

@@ -29,6 +29,18 @@ def can_fork() -> bool:
             and not mp.current_process().daemon)
 
 
+def one_blas_thread():
+    """A context in which the BLAS / OpenMP libraries loaded in this process run one thread each (threadpoolctl),
+    the previous counts put back at its end. Results depend on the BLAS thread count in their last bits
+    (:func:`selfsense.determinism.single_thread_blas`, which pins the process for good: the pipeline's jobs and the
+    ``selfsense`` command); this scoped limit gives a library caller that has not pinned the process the same bits
+    as they do. The limit is the process's: two threads that each enter and leave it at different times can still
+    leave one of them unpinned for a while, so concurrent callers pin the process instead."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1)
+
+
 def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int, threads_fallback: bool = False) -> list[R]:
     """``[fn(x) for x in items]``, with up to ``workers`` items at a time in forked child processes (taken in the
     order given as workers come free). Where forking is not possible (:func:`can_fork`: a job running in a thread of
@@ -45,7 +57,12 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int, threads_fal
         import contextvars
         from concurrent.futures import ThreadPoolExecutor
 
-        with ThreadPoolExecutor(workers, thread_name_prefix="selfsense") as pool:
+        # one BLAS thread for the whole map, set here in the calling thread: a BLAS thread limit is the process's, not
+        # a thread's, so a worker that leaves its own ``threadpool_limits(1)`` block (the Duhem fit's) would put the
+        # count it found back while another worker is still inside its block -- that one's arithmetic would then run
+        # on several BLAS threads and give other bits, depending on timing. Under this limit every nested block
+        # finds one thread and puts one back
+        with one_blas_thread(), ThreadPoolExecutor(workers, thread_name_prefix="selfsense") as pool:
             futs = [pool.submit(contextvars.copy_context().run, fn, x) for x in items]
             return [f.result() for f in futs]
     prev, _FN = _FN, fn
