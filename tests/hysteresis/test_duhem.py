@@ -345,3 +345,20 @@ def test_the_joint_hold_candidate_is_left_out_without_holds_unless_held_alone():
     if alone.model.kind == "duhem":
         assert alone.model.coef_.tobytes() == both.model.coef_.tobytes()
         assert DuhemH.from_dict(alone.model.to_dict()).hold_nfev == 8
+
+
+def test_the_registry_names_a_forms_hold_search_and_its_twin_without_it():
+    """``searches_holds`` / ``without_hold_search`` read the hold-search parameters from the form's class (the Duhem
+    map's ``hold_nfev``), not from the caller: every form of the default list that searches the holds has its twin
+    in the list, and a form of a class without such parameters is its own twin."""
+    from selfsense.hysteresis.models import searches_holds, without_hold_search
+    from selfsense.hysteresis.models.select import DEFAULT_CANDIDATES
+
+    joint = ("duhem", {"degree": 3, "ridge": 1e-7, "hold_nfev": 8})
+    assert searches_holds(joint) and not searches_holds(("duhem", {"degree": 3, "hold_nfev": 0}))
+    assert without_hold_search(joint) == ("duhem", {"degree": 3, "ridge": 1e-7})
+    # a parameter of that name means nothing to a class that does not declare it
+    assert not searches_holds(("preisach", {"n_grid": 12, "hold_nfev": 8}))
+    assert without_hold_search(("preisach", {"n_grid": 12})) == ("preisach", {"n_grid": 12})
+    held = [c for c in DEFAULT_CANDIDATES if searches_holds(c)]
+    assert held and all(without_hold_search(c) in DEFAULT_CANDIDATES for c in held)

@@ -27,6 +27,7 @@ Units: SI throughout (C, V, m, N, s).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -38,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from selfsense.hysteresis.models import LinearParamH, ridge_lstsq
+from selfsense.hysteresis.models import searches_holds as _searches_holds  # (the joint hold search, docs/method.md 6b')
 from selfsense.io.rig import rig_value
 from selfsense.mechanics.piezo import force_row  # thesis eq. (46): the two-port force row
 from selfsense.sensing.core import (force_coefficients, force_regressor, h_target, piezo_voltage, tip_displacement,
@@ -700,7 +702,7 @@ class SelfSensingEstimator:
     # ------------------------------------------------------------------ fitting
     def _without_hold_map(self) -> tuple:
         """The configured H(q) candidates without the forms whose map is fitted to the hold rows (``hold_nfev``)."""
-        return tuple(c for c in _candidates_for(self.config.h_model, self.config) if not c[1].get("hold_nfev"))
+        return tuple(c for c in _candidates_for(self.config.h_model, self.config) if not _searches_holds(c))
 
     def selected_form(self) -> tuple:
         """The fitted H(q) form as a candidate list for a refit of this estimator's configuration on changed data
@@ -1143,13 +1145,9 @@ class SelfSensingEstimator:
                 # without leakage, the offset-drift decision is made again on the rows without it (leakage forced
                 # off: no search, the blocked CV with and without the drift columns at g = 0; the error without
                 # leakage is taken from this fit's own search, same inputs)
-                saved, saved_reuse = self.members, self.leakage_search_reuse
-                self.members = {**dict(saved), "leakage": "off"}
-                self.leakage_search_reuse = drift_info["search"]
-                try:
+                with self._inputs_overridden(members={**dict(self.members), "leakage": "off"},
+                                             leakage_search_reuse=drift_info["search"]):
                     _, off = self._leakage(cal_trials, cal, slope)
-                finally:
-                    self.members, self.leakage_search_reuse = saved, saved_reuse
                 drift_info.update({"leakage_s": 0.0, "applied": False, "source": "none",
                                    "cv_rms_v_with": off["cv_rms_v_with"],
                                    **{k: off[k] for k in ("offset_drift_cv_rms_v_without", "offset_drift_applied",
@@ -1275,13 +1273,9 @@ class SelfSensingEstimator:
         ``drift_info["selected_form_decision"]``."""
         from selfsense.hysteresis.models.select import select_h_model
 
-        saved, saved_reuse = self.members, self.leakage_search_reuse
-        self.members = {**dict(saved or {}), "leakage": "on"}
-        self.leakage_search_reuse = drift_info.get("search")
-        try:
+        with self._inputs_overridden(members={**dict(self.members or {}), "leakage": "on"},
+                                     leakage_search_reuse=drift_info.get("search")):
             g, on = self._leakage(cal_trials, cal, slope)
-        finally:
-            self.members, self.leakage_search_reuse = saved, saved_reuse
         od = bool(on["offset_drift_applied"])
         cv_0 = float(next(r for r in sel.table if r["selected"])["cv_rms_mean_v"])
         decision = {"leakage_s": g, "source": on.get("source"), "offset_drift_applied": od,
@@ -1879,19 +1873,15 @@ class SelfSensingEstimator:
             self.tip_creep_["taus_s"] = list(taus)
         rows = self._coefficient_rows(cal_trials, cal, taus)
         creep_on = self._tip_creep_decision(creep_mode, rows)
-        if creep_on and not self.h_candidates and any(p.get("hold_nfev") for _, p in self.selected_form()):
+        if creep_on and not self.h_candidates and any(map(_searches_holds, self.selected_form())):
             # under a tip that creeps, the holds' charge is not H's (the creep moves charge through the coupling):
             # the H(q) form whose map was fitted to the hold rows (the joint hold search, docs/method.md 6b') is
             # not carried beside the creep member -- H(q) is calibrated again without those candidates and the
             # coefficients regressed on that chain (the second pass selects none of them: no loop)
-            saved_reuse = self.leakage_search_reuse
-            self.h_candidates = self._without_hold_map()
-            self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
-            try:
+            with self._inputs_overridden(h_candidates=self._without_hold_map(),
+                                         leakage_search_reuse=self._own_leakage_search()):
                 self.fit_hysteresis(trials, meta)
                 self._fit_coefficients(trials, meta)
-            finally:
-                self.h_candidates, self.leakage_search_reuse = (), saved_reuse
             self.fit_report_["hysteresis"]["hold_map"] = (
                 "the H(q) form fitted jointly with the hold rows was selected first; H(q) calibrated again without "
                 "the joint hold search beside the load link's creep member (its holds are not H's)")
@@ -1917,21 +1907,17 @@ class SelfSensingEstimator:
                 self.__dict__.clear()
                 self.__dict__.update(with_drift)
 
-            saved, saved_reuse, saved_cands = self.members, self.leakage_search_reuse, self.h_candidates
-            self.members = {**dict(saved or {}), "offset_drift": "off"}
             # the leakage search reads the calibration inputs only (its reference carries the drift columns either
-            # way): this fit's search is reused
-            self.leakage_search_reuse = (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
-            if not saved_cands:
-                # the chain it is decided against carries the creep member: no map fitted to the holds (above)
-                self.h_candidates = self._without_hold_map()
+            # way): this fit's search is reused; the chain it is decided against carries the creep member: no map
+            # fitted to the holds (above) unless the caller gave the candidates
             refit_error = None
-            try:
-                self.fit_hysteresis(trials, meta)
-            except Exception as exc:   # noqa: BLE001 -- any failure of the refit leaves the chain with the drift
-                refit_error = exc
-            finally:
-                self.members, self.leakage_search_reuse, self.h_candidates = saved, saved_reuse, saved_cands
+            with self._inputs_overridden(members={**dict(self.members or {}), "offset_drift": "off"},
+                                         leakage_search_reuse=self._own_leakage_search(),
+                                         h_candidates=self.h_candidates or self._without_hold_map()):
+                try:
+                    self.fit_hysteresis(trials, meta)
+                except Exception as exc:   # noqa: BLE001 -- any failure of the refit leaves the chain with the drift
+                    refit_error = exc
             if refit_error is not None:
                 restore()
                 check = {"cv_rms_m_with_offset_drift": cv_od, "offset_drift_kept": True,
@@ -2476,6 +2462,27 @@ class SelfSensingEstimator:
             "dx_hat": dx, "f_hat": f, "dx_raw": dx_raw, "f_raw": f_raw,
             "V_p": X[:, 1], "V_H": V_H, "q": q_measured,
         })
+
+    def _own_leakage_search(self):
+        """The leakage search of this estimator's last H(q) calibration (``fit_report.hysteresis.drift.search``),
+        to be reused by a calibration on the same inputs, or None."""
+        return (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
+
+    @contextlib.contextmanager
+    def _inputs_overridden(self, **inputs):
+        """The caller's inputs ``inputs`` (forced ``members``, ``leakage_search_reuse``, ``h_candidates``) set on this
+        estimator for the block -- a second calibration of the chain under other forced members or candidates, inside
+        one fit -- and the caller's own objects put back afterwards, whatever the block raised. Only those inputs are
+        restored; the fitted state the block leaves is the caller's to keep or to restore
+        (:meth:`fitted_copy`)."""
+        saved = {k: getattr(self, k) for k in inputs}
+        for k, v in inputs.items():
+            setattr(self, k, v)
+        try:
+            yield self
+        finally:
+            for k, v in saved.items():
+                setattr(self, k, v)
 
     # ------------------------------------------------------------------ serialisation
     #: attributes a :meth:`fitted_copy` shares with the original: what the caller gave, not what the fit made

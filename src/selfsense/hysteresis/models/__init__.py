@@ -35,7 +35,7 @@ from ._grid import (grid_state, play_features, play_output, play_output_kernel, 
                     relaxation_output, relaxation_output_kernel)
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
-           "make_model", "DEFAULT_CREEP_TAU_S", "DegenerateFitError",
+           "make_model", "searches_holds", "without_hold_search", "DEFAULT_CREEP_TAU_S", "DegenerateFitError",
            # the compiled kernels of predict, for callers that compile them into their own loops (the stream)
            "duhem_run", "preisach_grid_kernel", "play_output_kernel", "relaxation_output_kernel", "relaxation_gains"]
 
@@ -749,6 +749,21 @@ def make_model(kind: str, **kw):
     if kind not in REGISTRY:
         raise ValueError(f"unknown H model kind {kind!r}; expected one of {sorted(REGISTRY)}")
     return REGISTRY[kind](**kw)
+
+
+def searches_holds(cand) -> bool:
+    """Whether the registry form ``cand = (kind, params)`` fits its map to the hold rows as well (a parameter of its
+    class's ``hold_search_params`` set, e.g. the Duhem map's joint hold search ``hold_nfev``)."""
+    kind, params = cand
+    return any(params.get(n) for n in getattr(REGISTRY.get(kind), "hold_search_params", ()))
+
+
+def without_hold_search(cand) -> tuple[str, dict]:
+    """The form ``cand = (kind, params)`` without its class's hold-search parameters: the twin it is fitted as where
+    no trial has a hold (the same form for a class without such parameters)."""
+    kind, params = cand
+    drop = getattr(REGISTRY.get(kind), "hold_search_params", ())
+    return kind, {n: v for n, v in params.items() if n not in drop}
 
 
 def h_from_dict(d: Mapping[str, Any]):

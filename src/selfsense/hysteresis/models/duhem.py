@@ -84,6 +84,9 @@ class DuhemH:
     convex = False
     #: fits extra columns jointly and accepts a row mask (blocked CV over every segment, ``select._cv_masked``)
     joint_extra = True
+    #: constructor parameters that only say how the fit reads the hold rows (:func:`~selfsense.hysteresis.models.
+    #: without_hold_search`): without them the form is its map-first twin
+    hold_search_params = ("hold_nfev",)
 
     def __init__(self, degree: int = 3, ridge: float = 1e-7, creep: bool = True,
                  creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, eps: float = 2e-3, max_nfev: int = 30,

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import (DegenerateFitError, LinearParamH, fit_rows, fit_stride, make_model, qr_reduce, ridge_lstsq,
-               stacked_extra, stacked_rows)
+               searches_holds, stacked_extra, stacked_rows, without_hold_search)
 
 log = logging.getLogger(__name__)
 
@@ -498,13 +498,24 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     RI after 2, the Duhem form with creep after 1 fold instead of 2 (about 1.2 s CPU less). The straight line and
     the PI baseline are never stopped (the checks above read them), and nothing is stopped before the straight line
     is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
+    from selfsense.parallel import one_blas_thread
+
+    # one BLAS thread throughout, in the serial loop and around its workers alike (the pipeline pins the process
+    # anyway): the table and the model then have the same bits for every cv_workers count in any caller's process
+    with one_blas_thread():
+        return _select_h_model(qs, ys, dt, extras, free, candidates, n_blocks, thin, trial_names, baseline_only_warn,
+                               rotate_folds, holds, cv, prune)
+
+
+def _select_h_model(qs, ys, dt, extras, free, candidates, n_blocks, thin, trial_names, baseline_only_warn,
+                    rotate_folds, holds, cv, prune) -> SelectionResult:
+    """:func:`select_h_model`'s work, under its BLAS thread limit."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
     if not holds:
         # without hold rows, a form that differs from another candidate only in how it fits them is that candidate
         # (a form held alone, as the chain's member searches pass it, stays: it is then fitted as that twin)
-        plain = [(k, {n: v for n, v in p.items() if n != "hold_nfev"}) for k, p in candidates]
-        candidates = tuple(c for c, t in zip(candidates, plain) if not c[1].get("hold_nfev") or t not in candidates)
+        candidates = tuple(c for c in candidates if not searches_holds(c) or without_hold_search(c) not in candidates)
     qs = [np.asarray(q, float) for q in qs]
     ys = [np.asarray(y, float) for y in ys]
     lengths = [len(q) for q in qs]
