@@ -342,3 +342,23 @@ def test_h_error_cost_is_the_h_error_through_a2_and_b22(data):
         out[name] = c
     for k in ("h_error_v", "dx_pct", "f_pct"):
         assert out["pi3"][k] == pytest.approx(out["pi"][k], rel=1e-9)
+
+
+def test_a_second_calibrations_inputs_are_the_callers_again_after_the_block_even_when_it_raises():
+    """``_inputs_overridden``: the forced members, the leakage search to reuse and the candidates a fit sets for a
+    second calibration inside itself are put back as the very objects the caller gave (the gap diagnostic compares
+    and shares them by identity), also when that calibration raises; nothing else is touched."""
+    from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
+
+    members, reuse, cands = {"leakage": "auto"}, {"g": 1.0}, (("linear", {}),)
+    est = SelfSensingEstimator(config=SensingConfig(), rig=None, members=members, leakage_search_reuse=reuse,
+                               h_candidates=cands)
+    est.fit_report_ = {"kept": True}
+    with est._inputs_overridden(members={"leakage": "off"}, h_candidates=()) as inner:
+        assert inner is est and est.members == {"leakage": "off"} and est.h_candidates == ()
+        assert est.leakage_search_reuse is reuse
+    assert est.members is members and est.h_candidates is cands and est.leakage_search_reuse is reuse
+    with pytest.raises(RuntimeError, match="refit failed"):
+        with est._inputs_overridden(members={"offset_drift": "off"}, leakage_search_reuse=None):
+            raise RuntimeError("refit failed")
+    assert est.members is members and est.leakage_search_reuse is reuse and est.fit_report_ == {"kept": True}
