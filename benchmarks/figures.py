@@ -207,7 +207,7 @@ COMMANDS = {
     "gap_tip_20261216": "selfsense gap blind --tip --n 80 --seed 20261216 --jobs 1 --out benchmarks/gap_tip/seed_20261216",
     "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
     "gap_tip_20261218": "selfsense gap blind --tip --n 80 --seed 20261218 --jobs 1 --out benchmarks/gap_tip/seed_20261218",
-    "gap_tip_20261219": "selfsense gap blind --tip --n 80 --seed 20261219 --jobs 1 --out benchmarks/gap_tip/seed_20261219",
+    "gap_tip_20261219": "selfsense gap blind --tip --n 80 --seed 20261219 --jobs 2 --out benchmarks/gap_tip/seed_20261219",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
