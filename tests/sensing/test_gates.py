@@ -52,6 +52,18 @@ def test_calibration_leakage_contradicted_by_the_holds_above_one_and_a_half_time
     assert not E.leakage_contradicted_by_holds(10 * g, None)    # no measurement, no contradiction
 
 
+def test_forced_leakage_from_the_calibration_rows_gives_way_to_the_holds_only_where_the_rows_found_none():
+    """Leakage forced on: a calibration-row g of at most 0.1 nS (none found) gives way to the holds' measured
+    conductance; any g the rows did find stands, however far below the holds' value (a relaxation inflates theirs:
+    tweezer_sim 1.6 nS against 3.2 nS, 0.5 nS true); with nothing measured there is nothing to give way to."""
+    g = 58e-9
+    assert E.leakage_understated_by_holds(0.1e-9, g) and E.leakage_understated_by_holds(0.02e-9, g)
+    assert not E.leakage_understated_by_holds(0.1e-9 * (1 + EPS), g)
+    assert not E.leakage_understated_by_holds(1.6e-9, 3.2e-9)
+    assert not E.leakage_understated_by_holds(0.0, None)
+    assert not E.leakage_understated_by_holds(0.0, 0.05e-9)    # the holds found no more than that either
+
+
 def test_offset_drift_at_its_threshold():
     assert E.offset_drift_supported(0.99 - EPS, 1.0)
     assert not E.offset_drift_supported(0.99 + EPS, 1.0)

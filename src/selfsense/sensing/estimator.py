@@ -538,6 +538,23 @@ def leakage_contradicted_by_holds(g_cal: float, g_holds: float | None) -> bool:
     return bool(g_holds is not None and g_cal > LEAK_HOLD_CONTRADICTION * g_holds)
 
 
+#: a calibration-row leakage at or below this conductance [S] is none found (the support gates ask for more)
+LEAK_FOUND_S = 0.1e-9
+
+
+def leakage_understated_by_holds(g_cal: float, g_holds: float | None) -> bool:
+    """With leakage forced on (``members={"leakage": "on"}``: the gap diagnostic's recalibration of a confirmed
+    leakage, or a user's configuration), the calibration rows' ``g_cal`` [S] gives way to the conductance ``g_holds``
+    the holds of every trial measure where the rows found none (``g_cal <= LEAK_FOUND_S``, 0.1 nS): sines at one rate
+    excite leakage too little for the search (their charge ramp ``g int V dt`` averages out over each period), while
+    a hold at a constant voltage integrates it. Left to the calibration rows, the member forced on would carry next
+    to no leakage (0.02 nS against the holds' 58 nS, 36 nS injected, on tip case 41 of seed 20261219; docs/gap.md).
+    A calibration ``g`` that found something stands, however far below the holds' value: a decaying relaxation
+    inflates theirs (the bundled ``tweezer_sim``: 0.5 nS true, 1.6 nS from its calibration rows, 3.2 nS from its
+    holds). Not used in ``auto``: there the holds' measurement alone is no support."""
+    return bool(g_holds is not None and g_holds > LEAK_FOUND_S and g_cal <= LEAK_FOUND_S)
+
+
 def offset_drift_supported(cv_with: float, cv_without: float) -> bool:
     """The offset-drift columns are adopted when they lower the blocked-CV error by more than 1 %."""
     return bool(cv_with < (1.0 - OFFSET_DRIFT_MIN_GAIN) * cv_without)
@@ -1015,6 +1032,14 @@ class SelfSensingEstimator:
                 g_cal, best_cal, cal_label = g_meas, cv_meas, "holds' measurement"
             else:
                 cal_ok = False
+        elif modes["leakage"] == "on" and leakage_understated_by_holds(g_cal, g_meas):
+            # forced on: the calibration rows that barely see leakage do not set it to next to nothing where the
+            # holds of every trial measure it
+            cv_meas = cv(g_meas, True)
+            info.update({"leakage_calibration_understated": True, "cv_rms_v_with_holds_measured_g": cv_meas})
+            notes.append(f"the calibration rows found no leakage ({g_cal * 1e9:.3g} nS) where the holds of all trials "
+                         f"measure {g_meas * 1e9:.3g} nS: the holds' g takes its place (leakage forced on)")
+            g_cal, best_cal, cal_label = g_meas, cv_meas, "holds' measurement"
         # supported by the holds of every trial (reference-free, selfsense.chain.charge.hold_evidence) when the
         # calibration rows are not made worse by more than 2 % with the hold-estimated conductance
         g_hold = float(ev.get("g_s") or 0.0)
