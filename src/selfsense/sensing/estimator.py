@@ -905,7 +905,7 @@ class SelfSensingEstimator:
                 ex[i] = np.column_stack([ex[i], D])
         return qs, ys, ex, np.asarray(free, bool), names, float(np.median(dts))
 
-    def _leakage(self, cal_trials, cal, slope) -> tuple[float, dict]:
+    def _leakage(self, cal_trials, cal, slope, holds_fallback: bool = True) -> tuple[float, dict]:
         """Leakage conductance g [S] of the actuator set and whether to compensate offset drift, from the calibration
         trials: g in 0..50 nS (beyond, where the data reach that bound) is the value for which a reference Preisach
         model (12 x 12 grid + 6 plays + creep, with the per-trial drift columns) fits the joint calibration rows best
@@ -918,7 +918,9 @@ class SelfSensingEstimator:
         takes its place if the calibration rows' blocked-CV error is not higher with it than without leakage, else
         leakage is not applied. Where neither source supports leakage on its own, the calibration rows' g is applied
         when the conductance the holds measure agrees with it (:func:`leakage_corroborated`). The offset-drift columns are applied when they lower that error by more than 1 %. ``members``
-        forces either on or off. Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
+        forces either on or off; forced on, a calibration g of at most 0.1 nS gives way to the conductance the holds
+        measure (:func:`leakage_understated_by_holds`) unless ``holds_fallback`` is False (the selection's second look
+        at the search's own g). Every decision and its numbers are reported (``fit_report_["hysteresis"]["drift"]``).
         """
         from scipy.optimize import minimize_scalar
 
@@ -1032,9 +1034,10 @@ class SelfSensingEstimator:
                 g_cal, best_cal, cal_label = g_meas, cv_meas, "holds' measurement"
             else:
                 cal_ok = False
-        elif modes["leakage"] == "on" and leakage_understated_by_holds(g_cal, g_meas):
+        elif holds_fallback and modes["leakage"] == "on" and leakage_understated_by_holds(g_cal, g_meas):
             # forced on: the calibration rows that barely see leakage do not set it to next to nothing where the
-            # holds of every trial measure it
+            # holds of every trial measure it (not for the selection's second look at the search's own g in auto,
+            # :meth:`_leakage_by_selection`, which forces the member on inside the fit: ``holds_fallback=False``)
             cv_meas = cv(g_meas, True)
             info.update({"leakage_calibration_understated": True, "cv_rms_v_with_holds_measured_g": cv_meas})
             notes.append(f"the calibration rows found no leakage ({g_cal * 1e9:.3g} nS) where the holds of all trials "
@@ -1300,7 +1303,7 @@ class SelfSensingEstimator:
 
         with self._inputs_overridden(members={**dict(self.members or {}), "leakage": "on"},
                                      leakage_search_reuse=drift_info.get("search")):
-            g, on = self._leakage(cal_trials, cal, slope)
+            g, on = self._leakage(cal_trials, cal, slope, holds_fallback=False)
         od = bool(on["offset_drift_applied"])
         cv_0 = float(next(r for r in sel.table if r["selected"])["cv_rms_mean_v"])
         decision = {"leakage_s": g, "source": on.get("source"), "offset_drift_applied": od,
