@@ -17,9 +17,11 @@ from selfsense.parallel import can_fork, fork_map
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _fresh(code: str) -> str:
-    """Run ``code`` in a new single-threaded interpreter (selfsense from this checkout); its stdout."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]))
+def _fresh(code: str, drop=()) -> str:
+    """Run ``code`` in a new single-threaded interpreter (selfsense from this checkout), without the environment
+    variables ``drop``; its stdout."""
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
@@ -107,7 +109,7 @@ def test_threaded_workers_keep_one_blas_thread_while_another_leaves_its_own_limi
     worker may have pinned this process, and its variables would pin the child too)."""
     from selfsense.determinism import THREAD_ENV_VARS
 
-    code = textwrap.dedent("""
+    code = """
         import threading, time
         from threadpoolctl import threadpool_info, threadpool_limits
         from selfsense.parallel import can_fork, fork_map
@@ -147,12 +149,9 @@ def test_threaded_workers_keep_one_blas_thread_while_another_leaves_its_own_limi
             stop.set()
             t.join()
         print("worker1", got[1], "after", counts())
-    """)
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_ENV_VARS}
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
-    if out.stdout.startswith("skip"):
-        pytest.skip(f"this machine's BLAS runs {out.stdout.split(' ', 1)[1].strip()} thread(s) at most: no second "
-                    "thread to race for")
-    assert out.stdout.strip() == "worker1 [1] after [2]", out.stdout
+    """
+    out = _fresh(code, drop=THREAD_ENV_VARS)
+    if out.startswith("skip"):
+        pytest.skip(f"this machine's BLAS runs {out.split(' ', 1)[1].strip()} thread(s) at most: no second thread to "
+                    "race for")
+    assert out.strip() == "worker1 [1] after [2]", out

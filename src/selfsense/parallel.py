@@ -41,6 +41,18 @@ def one_blas_thread():
     return threadpool_limits(limits=1)
 
 
+def with_one_blas_thread(fn: Callable[..., R]) -> Callable[..., R]:
+    """``fn`` run under :func:`one_blas_thread` at every call (its signature and docstring kept)."""
+    import functools
+
+    @functools.wraps(fn)
+    def pinned(*args, **kwargs):
+        with one_blas_thread():
+            return fn(*args, **kwargs)
+
+    return pinned
+
+
 def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int, threads_fallback: bool = False) -> list[R]:
     """``[fn(x) for x in items]``, with up to ``workers`` items at a time in forked child processes (taken in the
     order given as workers come free). Where forking is not possible (:func:`can_fork`: a job running in a thread of

@@ -225,9 +225,10 @@ def adopted_members(fitted) -> dict:
 
 
 def _search_of(fitted):
-    """The fitted estimator's leakage search (``fit_report_["hysteresis"]["drift"]["search"]``), or None."""
-    rep = getattr(fitted, "fit_report_", None) or {}
-    return (rep.get("hysteresis", {}).get("drift") or {}).get("search")
+    """The fitted estimator's leakage search (:func:`selfsense.sensing.estimator.leakage_search_of`), or None."""
+    from selfsense.sensing.estimator import leakage_search_of
+
+    return leakage_search_of(fitted)
 
 
 def _form_of(fitted) -> tuple:

@@ -555,6 +555,13 @@ def leakage_understated_by_holds(g_cal: float, g_holds: float | None) -> bool:
     return bool(g_holds is not None and g_holds > LEAK_FOUND_S and g_cal <= LEAK_FOUND_S)
 
 
+def leakage_search_of(fitted) -> dict | None:
+    """The leakage search of a fitted estimator's last H(q) calibration (``fit_report_["hysteresis"]["drift"]
+    ["search"]``), to be reused by a calibration on the same inputs, or None (not fitted, or no such report)."""
+    rep = getattr(fitted, "fit_report_", None) or {}
+    return (rep.get("hysteresis", {}).get("drift") or {}).get("search")
+
+
 def offset_drift_supported(cv_with: float, cv_without: float) -> bool:
     """The offset-drift columns are adopted when they lower the blocked-CV error by more than 1 %."""
     return bool(cv_with < (1.0 - OFFSET_DRIFT_MIN_GAIN) * cv_without)
@@ -1907,7 +1914,7 @@ class SelfSensingEstimator:
             # not carried beside the creep member -- H(q) is calibrated again without those candidates and the
             # coefficients regressed on that chain (the second pass selects none of them: no loop)
             with self._inputs_overridden(h_candidates=self._without_hold_map(),
-                                         leakage_search_reuse=self._own_leakage_search()):
+                                         leakage_search_reuse=leakage_search_of(self)):
                 self.fit_hysteresis(trials, meta)
                 self._fit_coefficients(trials, meta)
             self.fit_report_["hysteresis"]["hold_map"] = (
@@ -1940,7 +1947,7 @@ class SelfSensingEstimator:
             # fitted to the holds (above) unless the caller gave the candidates
             refit_error = None
             with self._inputs_overridden(members={**dict(self.members or {}), "offset_drift": "off"},
-                                         leakage_search_reuse=self._own_leakage_search(),
+                                         leakage_search_reuse=leakage_search_of(self),
                                          h_candidates=self.h_candidates or self._without_hold_map()):
                 try:
                     self.fit_hysteresis(trials, meta)
@@ -2490,11 +2497,6 @@ class SelfSensingEstimator:
             "dx_hat": dx, "f_hat": f, "dx_raw": dx_raw, "f_raw": f_raw,
             "V_p": X[:, 1], "V_H": V_H, "q": q_measured,
         })
-
-    def _own_leakage_search(self):
-        """The leakage search of this estimator's last H(q) calibration (``fit_report.hysteresis.drift.search``),
-        to be reused by a calibration on the same inputs, or None."""
-        return (self.fit_report_.get("hysteresis", {}).get("drift") or {}).get("search")
 
     @contextlib.contextmanager
     def _inputs_overridden(self, **inputs):

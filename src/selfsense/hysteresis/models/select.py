@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from selfsense.parallel import with_one_blas_thread
+
 from . import (DegenerateFitError, LinearParamH, fit_rows, fit_stride, make_model, qr_reduce, ridge_lstsq,
                searches_holds, stacked_extra, stacked_rows, without_hold_search)
 
@@ -464,6 +466,9 @@ def json_safe_table(table: list[dict]) -> list[dict]:
     return [{k: safe(v) for k, v in r.items()} for r in table]
 
 
+# one BLAS thread throughout, in the serial loop and around its workers alike (the pipeline pins the process anyway):
+# the table and the model then have the same bits for every cv_workers count in any caller's process
+@with_one_blas_thread
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
                    rotate_folds: bool | None = None, holds=None, cv: bool = True, prune: bool = False) -> SelectionResult:
@@ -498,18 +503,6 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     RI after 2, the Duhem form with creep after 1 fold instead of 2 (about 1.2 s CPU less). The straight line and
     the PI baseline are never stopped (the checks above read them), and nothing is stopped before the straight line
     is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
-    from selfsense.parallel import one_blas_thread
-
-    # one BLAS thread throughout, in the serial loop and around its workers alike (the pipeline pins the process
-    # anyway): the table and the model then have the same bits for every cv_workers count in any caller's process
-    with one_blas_thread():
-        return _select_h_model(qs, ys, dt, extras, free, candidates, n_blocks, thin, trial_names, baseline_only_warn,
-                               rotate_folds, holds, cv, prune)
-
-
-def _select_h_model(qs, ys, dt, extras, free, candidates, n_blocks, thin, trial_names, baseline_only_warn,
-                    rotate_folds, holds, cv, prune) -> SelectionResult:
-    """:func:`select_h_model`'s work, under its BLAS thread limit."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
     if not holds:
