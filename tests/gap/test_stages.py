@@ -219,7 +219,8 @@ def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
     report's chain table (``chain_contributions``), is positive where the member helps, and all together / Shapley
     start from the same base. (Before, a carried member was given 0, and the tip tier's error was 1 by construction.)"""
     from selfsense.gap.blind import FS_CASE, T_CASE, draw_tip_case
-    from selfsense.gap.counterfactual import adopted_members, chain_contributions, counterfactual
+    from selfsense.gap.counterfactual import (INTERVAL_UPPER_WIDEN, adopted_members, chain_contributions,
+                                              counterfactual, widened_interval)
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
     c = draw_tip_case(51, 4711)   # a Jiles-Atherton device with leakage (6.4 nS), which the default estimator adopts
@@ -239,6 +240,11 @@ def test_a_carried_chain_member_shrinks_by_its_own_contribution(thr):
     assert e["shrink"] > 2.0   # measured 5.09 points (the effect-free twin: 5.79 below the chain without leakage)
     lo, hi = e["shrink_interval_90"]
     assert lo < e["shrink"] < hi
+    # the 90 % interval is the block bootstrap's, its upper side widened (counterfactual.widened_interval)
+    blo, bhi = e["shrink_interval_90_blocks"]
+    assert lo == blo and hi == pytest.approx(e["shrink"] + INTERVAL_UPPER_WIDEN * (bhi - e["shrink"]), rel=1e-12)
+    assert hi > bhi
+    assert cf["shrink_all_interval_90"] == widened_interval(cf["shrink_all"], cf["shrink_all_interval_90_blocks"])
     assert cf["base_members_off"] == ["leakage"]
     assert cf["shrink_all"] == pytest.approx(e["shrink"], abs=1e-12)
     assert cf["shapley"]["slow.leakage"] == pytest.approx(e["shrink"], abs=1e-12)

@@ -355,10 +355,12 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
            "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
            "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
            "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
+           "interval_blocks": {k: v["shrink_interval_90_blocks"] for k, v in cf["effects"].items()},
            "base": base, "error_without": e_without, "error_noise": e_noise,
            "true_shrink": cf["before"]["mean"] - e_without, "base_all": base_all,
            "shrink_all": cf.get("shrink_all", 0.0),
            "shrink_all_interval_90": cf.get("shrink_all_interval_90", [0.0, 0.0]),
+           "shrink_all_interval_90_blocks": cf.get("shrink_all_interval_90_blocks", [0.0, 0.0]),
            "seconds": time.perf_counter() - t0}
     return set_model_truths(out, e_matched)
 

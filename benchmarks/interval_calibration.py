@@ -1,0 +1,181 @@
+"""Calibration of the 90 % interval of "how far it shrinks" (``selfsense.gap.counterfactual.INTERVAL_UPPER_WIDEN``)
+on the blind tip campaigns, and its coverage on records it was not calibrated on.
+
+    python benchmarks/interval_calibration.py --out benchmarks/gap_tip/interval_calibration.md
+
+The gap diagnostic's interval of a predicted tip shrink was a paired block bootstrap over the validation blocks: the
+sampling spread of the recalibrated chain's change. It holds nothing of what the chain with the effect's model still
+leaves of the effect, and the truths of the blind tip tier (the case's Table 3 minus its effect-free twin's) fell
+outside it in a third of the cases, mostly above it. The interval is now ``[min(lo, p), p + c (hi - p)]`` for a
+prediction ``p`` with bootstrap interval ``[lo, hi]`` (:func:`selfsense.gap.counterfactual.widened_interval`). ``c``
+is set by split-conformal calibration on the scored cases (named top-1, a true shrink beyond 3 tip noise floors:
+``selfsense.gap.blind._tip_scored``) of the calibration campaigns: the smallest factor that puts ``ceil(0.9 (n + 1))``
+of the ``n`` truths inside, rounded up to 0.01. The lower side is the bootstrap's (never narrowed).
+
+Reported: the factor, the coverage of the bootstrap and of the widened interval per calibration campaign, each
+campaign scored with the factor calibrated on the others (leave-one-campaign-out), per effect family, the median
+width relative to the truth, and the coverage on held-out records (``--held-out``: single-effect tip records of other
+campaigns, e.g. a fresh seed; ``--joint``: joint records of ``benchmarks/tip_joint.py``, the "all together" interval).
+Records written before the widening hold the bootstrap interval as ``interval`` (``shrink_all_interval_90``); later
+ones hold it as ``interval_blocks`` (``shrink_all_interval_90_blocks``) beside the widened one.
+"""
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: the calibration campaigns: every blind tip campaign made with the stage chain's members (2026-12-03 on)
+CALIBRATION = ("seed_20261213", "seed_20261214", "seed_20261216", "seed_20261217_160", "seed_20261218",
+               "seed_20261219")
+COVERAGE = 0.90
+
+
+def _records(path: Path) -> list[dict]:
+    f = path / "tip_cases.jsonl.gz" if path.is_dir() else path
+    name = "joint_cases.jsonl.gz"
+    if path.is_dir() and not f.exists() and (path / name).exists():
+        f = path / name
+    if not f.exists():
+        raise SystemExit(f"interval_calibration: no records at {f}")
+    return [json.loads(line) for line in gzip.open(f, "rt") if line.strip()]
+
+
+def tip_cases(recs: list[dict], campaign: str) -> list[dict]:
+    """The scored cases of single-effect tip records: prediction, truth, bootstrap interval, effect."""
+    from selfsense.gap.blind import _tip_scored, _truth
+
+    _, rows = _tip_scored(recs)
+    out = []
+    for r, x in zip(recs, rows):
+        if not x["scored"]:
+            continue
+        e = x["effect"]
+        lo, hi = (r.get("interval_blocks") or r["interval"])[e]
+        out.append({"campaign": campaign, "case": int(r["case"]), "effect": e, "pred": float(r["predicted_shrink"][e]),
+                    "true": float(_truth(r, e)), "lo": float(lo), "hi": float(hi)})
+    return out
+
+
+def joint_cases(recs: list[dict], campaign: str) -> list[dict]:
+    """The scored cases of joint records (benchmarks/tip_joint.py's rule: a true joint shrink beyond 3 floors)."""
+    from selfsense.gap.blind import tip_noise_floor
+
+    floor = tip_noise_floor(recs)
+    out = []
+    for r in recs:
+        t = float(r["true_all_from_base"])
+        if not abs(t) > 3.0 * floor:
+            continue
+        lo, hi = r.get("shrink_all_interval_90_blocks") or r["shrink_all_interval_90"]
+        out.append({"campaign": campaign, "case": int(r["case"]), "effect": "all together",
+                    "pred": float(r["shrink_all"]), "true": t, "lo": float(lo), "hi": float(hi)})
+    return out
+
+
+def inside(c: dict, upper: float) -> bool:
+    from selfsense.gap.counterfactual import widened_interval
+
+    lo, hi = widened_interval(c["pred"], [c["lo"], c["hi"]], upper)
+    return bool(lo <= c["true"] <= hi)
+
+
+def calibrate(cases: list[dict], coverage: float = COVERAGE) -> float:
+    """The smallest upper factor (>= 1, rounded up to 0.01) that puts ceil(coverage (n + 1)) of the cases' truths
+    inside the widened interval (split conformal); inf where the lower sides alone leave too many out."""
+    n = len(cases)
+    need = math.ceil(coverage * (n + 1))
+    if need > n:
+        return math.inf
+    ok_low = [c["true"] >= min(c["lo"], c["pred"]) for c in cases]
+    ups = sorted(0.0 if c["true"] <= c["pred"] else (c["true"] - c["pred"]) / max(c["hi"] - c["pred"], 1e-300)
+                 for c, ok in zip(cases, ok_low) if ok)
+    if len(ups) < need:
+        return math.inf
+    return max(1.0, math.ceil(ups[need - 1] * 100.0 - 1e-9) / 100.0)
+
+
+def width(c: dict, upper: float) -> float:
+    from selfsense.gap.counterfactual import widened_interval
+
+    lo, hi = widened_interval(c["pred"], [c["lo"], c["hi"]], upper)
+    return (hi - lo) / abs(c["true"])
+
+
+def report(calib: list[dict], held: dict[str, list[dict]], factor: float, commands: list[str]) -> str:
+    from selfsense.gap.counterfactual import INTERVAL_UPPER_WIDEN
+
+    f2 = lambda x: "-" if not np.isfinite(x) else f"{x:.2f}"  # noqa: E731
+    cov = lambda cs, u: float(np.mean([inside(c, u) for c in cs])) if cs else float("nan")  # noqa: E731
+    L = ["# The 90 % interval of \"how far it shrinks\": calibration on the blind tip campaigns", "",
+         "Commands: " + "; ".join(f"`{c}`" for c in commands), "",
+         f"Interval: `[min(lo, p), p + c (hi - p)]` around the prediction `p` with block-bootstrap interval `[lo, hi]`. "
+         f"Calibrated factor `c` = **{factor:.2f}** over {len(calib)} scored cases of {len(CALIBRATION)} campaigns "
+         f"(split conformal, {COVERAGE:.0%} of the truths inside); the code's `INTERVAL_UPPER_WIDEN` = "
+         f"{INTERVAL_UPPER_WIDEN:.2f}. Pooled coverage: bootstrap {f2(cov(calib, 1.0))}, widened "
+         f"{f2(cov(calib, factor))}; median width / |truth|: bootstrap "
+         f"{f2(float(np.median([width(c, 1.0) for c in calib])))}, widened "
+         f"{f2(float(np.median([width(c, factor) for c in calib])))}.", "",
+         "## Per calibration campaign, and leave-one-campaign-out", "",
+         "| campaign | scored cases | bootstrap coverage | widened coverage (pooled factor) | factor from the other "
+         "campaigns | coverage with it |", "|---|---|---|---|---|---|"]
+    for name in CALIBRATION:
+        cs = [c for c in calib if c["campaign"] == name]
+        rest = [c for c in calib if c["campaign"] != name]
+        u = calibrate(rest)
+        L.append(f"| {name} | {len(cs)} | {f2(cov(cs, 1.0))} | {f2(cov(cs, factor))} | {u:.2f} | {f2(cov(cs, u))} |")
+    L += ["", "## Per effect family (calibration campaigns pooled)", "",
+          "| effect family | scored cases | bootstrap coverage | widened coverage | factor from the other families | "
+          "coverage with it |", "|---|---|---|---|---|---|"]
+    for e in sorted({c["effect"] for c in calib}):
+        cs = [c for c in calib if c["effect"] == e]
+        u = calibrate([c for c in calib if c["effect"] != e])
+        L.append(f"| {e} | {len(cs)} | {f2(cov(cs, 1.0))} | {f2(cov(cs, factor))} | {u:.2f} | {f2(cov(cs, u))} |")
+    if held:
+        L += ["", "## Held-out records (not used to calibrate)", "",
+              "| records | scored cases | bootstrap coverage | widened coverage | median width / \\|truth\\|, "
+              "bootstrap / widened |", "|---|---|---|---|---|"]
+        for name, cs in held.items():
+            L.append(f"| {name} | {len(cs)} | {f2(cov(cs, 1.0))} | {f2(cov(cs, INTERVAL_UPPER_WIDEN))} | "
+                     f"{f2(float(np.median([width(c, 1.0) for c in cs])) if cs else float('nan'))} / "
+                     f"{f2(float(np.median([width(c, INTERVAL_UPPER_WIDEN) for c in cs])) if cs else float('nan'))} |")
+    return "\n".join(L) + "\n"
+
+
+def calibration_cases(root: Path = ROOT / "benchmarks" / "gap_tip") -> list[dict]:
+    return [c for name in CALIBRATION for c in tip_cases(_records(root / name), name)]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True, help="markdown report")
+    ap.add_argument("--held-out", nargs="*", default=[], help="single-effect tip records (folders or .jsonl.gz)")
+    ap.add_argument("--joint", nargs="*", default=[], help="joint tip records (folders or .jsonl.gz)")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT / "src"))
+    calib = calibration_cases()
+    factor = calibrate(calib)
+    held = {}
+    for p in a.held_out:
+        held[f"{Path(p).name} (single effect)"] = tip_cases(_records(Path(p)), Path(p).name)
+    for p in a.joint:
+        held[f"{Path(p).name} (all together)"] = joint_cases(_records(Path(p)), Path(p).name)
+    cmd = "python benchmarks/interval_calibration.py " + " ".join(
+        ([f"--held-out {' '.join(a.held_out)}"] if a.held_out else []) + ([f"--joint {' '.join(a.joint)}"]
+                                                                          if a.joint else []) + [f"--out {a.out}"])
+    text = report(calib, held, factor, [cmd])
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
