@@ -82,6 +82,7 @@ DATES = {
     "gap_tip_20261217": "2026-12-05",
     "gap_tip_20261218": "2026-12-05",
     "gap_tip_20261219": "2026-12-05",
+    "gap_tip_20261221": "2026-12-06",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -208,6 +209,9 @@ COMMANDS = {
     "gap_tip_20261217": "selfsense gap blind --tip --n 80 --seed 20261217 --jobs 1 --out benchmarks/gap_tip/seed_20261217",
     "gap_tip_20261218": "selfsense gap blind --tip --n 80 --seed 20261218 --jobs 1 --out benchmarks/gap_tip/seed_20261218",
     "gap_tip_20261219": "selfsense gap blind --tip --n 80 --seed 20261219 --jobs 2 --out benchmarks/gap_tip/seed_20261219",
+    "gap_tip_20261221": "selfsense gap blind --tip --n 80 --seed 20261221 --jobs 2 --out benchmarks/gap_tip/seed_20261221 "
+                        "(the code before the widened interval), then python benchmarks/interval_calibration.py --apply "
+                        "benchmarks/gap_tip/seed_20261221 --out benchmarks/gap_tip/seed_20261221",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -865,7 +869,8 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261214": "(before the temperature member) ",
                   "gap_tip_20261216": "(before the temperature trend refit held the form) ",
                   "gap_tip_20261217_160": "(before the lag member) ",
-                  "gap_tip_20261218": "(before the joint hold candidate) "}
+                  "gap_tip_20261218": "(before the joint hold candidate) ",
+                  "gap_tip_20261219": "(the bootstrap interval) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -936,7 +941,10 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_20261218", "gap_tip_20261218",
          "; made before the joint hold candidate of the H(q) selection (2026-12-05); the seed-20261219 rows are the "
          "current code"),
-        ("benchmarks/gap_tip/seed_20261219", "gap_tip_20261219", ""),
+        ("benchmarks/gap_tip/seed_20261219", "gap_tip_20261219",
+         "; made before the 90 % interval's upper side was widened (2026-12-06: the block bootstrap alone); the "
+         "seed-20261221 rows are the current code"),
+        ("benchmarks/gap_tip/seed_20261221", "gap_tip_20261221", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:

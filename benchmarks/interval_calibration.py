@@ -18,6 +18,10 @@ width relative to the truth, and the coverage on held-out records (``--held-out`
 campaigns, e.g. a fresh seed; ``--joint``: joint records of ``benchmarks/tip_joint.py``, the "all together" interval).
 Records written before the widening hold the bootstrap interval as ``interval`` (``shrink_all_interval_90``); later
 ones hold it as ``interval_blocks`` (``shrink_all_interval_90_blocks``) beside the widened one.
+
+    python benchmarks/interval_calibration.py --apply RECORDS_DIR --command "..." --out DIR
+
+writes a campaign made before the widening as the current code writes it (widened intervals, scored again).
 """
 from __future__ import annotations
 
@@ -149,6 +153,41 @@ def report(calib: list[dict], held: dict[str, list[dict]], factor: float, comman
     return "\n".join(L) + "\n"
 
 
+def widen_records(recs: list[dict]) -> list[dict]:
+    """Tip records written before the widening, as the current code writes them: the bootstrap intervals moved to
+    ``interval_blocks`` / ``shrink_all_interval_90_blocks`` and the widened ones in their place (the widening reads
+    only the prediction and the bootstrap interval, and the bootstrap draws the same numbers in the same order, so
+    every other field is what the current code gives)."""
+    from selfsense.gap.counterfactual import widened_interval
+
+    out = []
+    for r in recs:
+        if "interval_blocks" in r:
+            raise SystemExit(f"interval_calibration: case {r.get('case')} already holds widened intervals")
+        r = dict(r)
+        r["interval_blocks"] = r["interval"]
+        r["interval"] = {e: widened_interval(r["predicted_shrink"][e], iv) for e, iv in r["interval_blocks"].items()}
+        r["shrink_all_interval_90_blocks"] = r["shrink_all_interval_90"]
+        r["shrink_all_interval_90"] = widened_interval(r["shrink_all"], r["shrink_all_interval_90_blocks"])
+        out.append(r)
+    return out
+
+
+def apply(records: Path, out: Path, command: str) -> None:
+    """Write ``records`` (a single-effect tip campaign made before the widening) with widened intervals, scored
+    again, to ``out`` (tip_cases.jsonl.gz, tip_scores.json, tip_scores.md)."""
+    from selfsense.gap.blind import _write_records, score_tip, write_tip_scores
+
+    recs = widen_records(_records(records))
+    out.mkdir(parents=True, exist_ok=True)
+    _write_records(out / "tip_cases.jsonl.gz", recs)
+    src = records / "tip_scores.json" if records.is_dir() else None
+    sc = score_tip(recs)
+    if src is not None and src.exists():
+        sc["seconds"] = json.loads(src.read_text()).get("seconds")
+    write_tip_scores(recs, sc, out, command)
+
+
 def calibration_cases(root: Path = ROOT / "benchmarks" / "gap_tip") -> list[dict]:
     return [c for name in CALIBRATION for c in tip_cases(_records(root / name), name)]
 
@@ -158,8 +197,17 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="markdown report")
     ap.add_argument("--held-out", nargs="*", default=[], help="single-effect tip records (folders or .jsonl.gz)")
     ap.add_argument("--joint", nargs="*", default=[], help="joint tip records (folders or .jsonl.gz)")
+    ap.add_argument("--apply", default=None, help="instead: a single-effect tip campaign made before the widening "
+                    "(folder), written with widened intervals to --out (a folder) and scored again")
+    ap.add_argument("--command", default="", help="with --apply: the command that made the campaign (for its table)")
     a = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT / "src"))
+    if a.apply:
+        cmd = (f"{a.command}, intervals widened by python benchmarks/interval_calibration.py --apply {a.apply} "
+               f"--out {a.out}")
+        apply(Path(a.apply), Path(a.out), cmd.lstrip(", "))
+        print(f"widened records and scores -> {a.out}")
+        return 0
     calib = calibration_cases()
     factor = calibrate(calib)
     held = {}

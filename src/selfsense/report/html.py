@@ -380,8 +380,8 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
                      f"{_pct(b.get('displacement'))} (displacement) and {_pct(b.get('force'))} (force).{rec} Each "
                      "confirmed effect is corrected with its stage-fitted coefficients fixed, the estimator "
                      "recalibrated on the corrected calibration trials and scored again (shrink.md below; positive "
-                     "= smaller error; 90 % interval: the block bootstrap's, its upper side widened for what the recalibrated "
-                     "chain leaves of the effect, docs/gap.md).</p>")
+                     "= smaller error; 90 % interval: the block bootstrap's, its upper side widened for what the "
+                     "recalibrated chain leaves of the effect, docs/gap.md).</p>")
         eff = tip.get("effects") or {}
         if eff:
             parts.append("<ul>" + "".join(
