@@ -23,13 +23,3 @@ def int_ranges(spec: str) -> list[int]:
         out.extend(range(lo, hi + 1))
     return out
 
-
-def pin_blas() -> None:
-    """One BLAS / OpenMP thread in this process and the workers it forks, as the ``selfsense`` command and the
-    pipeline's jobs run (:func:`selfsense.determinism.single_thread_blas`): the case scripts' records then have the
-    bits of ``selfsense gap blind``, and two workers on two cores do not each start a second BLAS thread (measured,
-    ``tip_cases.py --seed 20261219 --cases 20,23 --jobs 2``: 52.7 s wall unpinned, 44.7 s pinned; predictions equal
-    to 1e-14)."""
-    from selfsense.determinism import single_thread_blas
-
-    single_thread_blas()

@@ -67,9 +67,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", required=True, help="markdown file to write")
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     key = ["family", "preset", "seed"]
     nat, fine = _records(a.native), _records(a.fine)
     bits = sorted({int(b) for b in fine.get("override_adc_bits", pd.Series(dtype=float)).dropna()})

@@ -228,9 +228,9 @@ def main(argv=None) -> int:
     ap.add_argument("--member", action="store_true",
                     help="score the estimator's creep member as built (tip_creep off against auto) on case and twin")
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
         recs = list(ex.map(_one_member if a.member else _one, [(i, a.seed) for i in a.cases]))
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -93,9 +93,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
         recs = list(ex.map(_one, a.cases))
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -870,7 +870,7 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261216": "(before the temperature trend refit held the form) ",
                   "gap_tip_20261217_160": "(before the lag member) ",
                   "gap_tip_20261218": "(before the joint hold candidate) ",
-                  "gap_tip_20261219": "(the bootstrap interval) "}
+                  "gap_tip_20261219": "(before the widened interval) "}
 
 
 def gap_figures() -> list[Fig]:

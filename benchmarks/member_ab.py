@@ -92,9 +92,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     from selfsense.gap.blind import draw_tip_case
 
     cases, i = [], 0

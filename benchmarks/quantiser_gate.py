@@ -115,9 +115,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     devices = [(f, p, s) for f in a.families.split(",") for p in a.presets.split(",") for s in int_ranges(a.seeds)]

@@ -43,9 +43,9 @@ def main(argv=None) -> int:
     ap.add_argument("--records", help="write the tables from these records (a previous run's .jsonl.gz) instead of "
                                       "running the cases again")
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     cases = [int(x) for x in a.cases.split(",")]
     old = {}
     if Path(a.campaign).exists():

@@ -123,9 +123,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--records", type=Path, help="write the tables from these records instead of running")
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     cases = a.cases if a.cases else list(range(a.n))
     command = "python benchmarks/tip_joint.py " + " ".join(sys.argv[1:] if argv is None else argv)
     t0 = datetime.now(timezone.utc)

@@ -49,9 +49,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="folder for the rescored records and tip_scores.md / .json")
     ap.add_argument("--jobs", type=int, default=1)
     a = ap.parse_args(argv)
-    from _args import pin_blas
+    from selfsense.determinism import single_thread_blas
 
-    pin_blas()   # one BLAS thread per process, as the selfsense command runs
+    single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     src, out = Path(a.records), Path(a.out)
     if src.resolve() == out.resolve():
         sys.exit(f"tip_matched_twin.py: --out must differ from --records ({src}): the campaign's records are kept")

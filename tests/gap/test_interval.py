@@ -38,6 +38,8 @@ def test_the_widened_interval_holds_the_bootstrap_and_the_prediction_and_widens_
 def test_a_factor_below_one_and_non_finite_inputs_are_handled_plainly():
     with pytest.raises(ValueError, match="narrow"):
         widened_interval(1.0, [0.0, 2.0], 0.5)
+    with pytest.raises(ValueError, match="expected a number >= 1"):
+        widened_interval(1.0, [0.0, 2.0], float("nan"))
     w = widened_interval(float("nan"), [0.0, 2.0])
     assert w == [0.0, 2.0]
 

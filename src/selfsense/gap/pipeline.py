@@ -156,6 +156,7 @@ def _tables(v: dict) -> dict[str, pd.DataFrame]:
                         "tip_shrink_points": te.get("shrink", np.nan),
                         "tip_shrink_lo90": (te.get("shrink_interval_90") or [np.nan])[0],
                         "tip_shrink_hi90": (te.get("shrink_interval_90") or [np.nan, np.nan])[1],
+                        "tip_shrink_lo90_blocks": (te.get("shrink_interval_90_blocks") or [np.nan])[0],
                         "tip_shrink_hi90_blocks": (te.get("shrink_interval_90_blocks") or [np.nan, np.nan])[1],
                         "shapley_points": (tip.get("shapley") or {}).get(e["effect"], np.nan),
                         "in_all_together": e["effect"] in tip.get("joint_effects", [])})
