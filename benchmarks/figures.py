@@ -88,6 +88,7 @@ DATES = {
     "gap_joint_20261203_rule": "2026-12-02",
     "gap_joint_20261204": "2026-12-02",
     "gap_joint_20261205": "2026-12-02",
+    "gap_joint_20261222": "2026-12-06",
     "stage_chain": "2026-11-26",
     "stage_chain_duhem_linear": "2026-11-26",
     "stage_chain_relay_bound": "2026-11-27",
@@ -227,6 +228,8 @@ COMMANDS = {
                           "benchmarks/gap_tip/joint_20261204",
     "gap_joint_20261205": "python benchmarks/tip_joint.py --seed 20261205 --n 20 --jobs 1 --out "
                           "benchmarks/gap_tip/joint_20261205",
+    "gap_joint_20261222": "python benchmarks/tip_joint.py --seed 20261222 --n 20 --jobs 2 --out "
+                          "benchmarks/gap_tip/joint_20261222",
     "stage_chain": "python benchmarks/stage_chain.py devices --seeds 0-5 --hold-s 0 --out benchmarks/stage_chain/thesis",
     "stage_chain_duhem_linear": "python benchmarks/stage_chain.py devices --families {families} --seeds 0-5 --hold-s 0 "
                                 "--out benchmarks/stage_chain/thesis_duhem_linear",
@@ -1011,6 +1014,8 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/joint_20261205", "gap_joint_20261205",
          "a seed never used, scored once after a member forced on was identified with the H(q) selection instead "
          "of the held form (first contact)"),
+        ("benchmarks/gap_tip/joint_20261222", "gap_joint_20261222",
+         "a seed never used, scored once with the widened interval of 2026-12-06 (first contact)"),
     ]:
         jsrc = f"{folder}/joint_cases.jsonl.gz"
         if not (ROOT / jsrc).exists():
