@@ -45,6 +45,7 @@ DATES = {
     "gap_stages_31337": "2026-11-27",
     "gap_stages_20261201": "2026-12-01",
     "gap_stages_20261207": "2026-12-02",
+    "gap_stages_20261223": "2026-12-06",
     "stress_first_20261206": "2026-12-02",
     "stress_wide_20261206": "2026-12-02",
     "stress_solve_20261206": "2026-12-03",
@@ -181,6 +182,8 @@ COMMANDS = {
                            "--out benchmarks/gap_stages/seed_20261201",
     "gap_stages_20261207": "selfsense gap blind --n 1000 --seed 20261207 --jobs 2 "
                            "--out benchmarks/gap_stages/seed_20261207",
+    "gap_stages_20261223": "selfsense gap blind --n 1000 --seed 20261223 --jobs 2 "
+                           "--out benchmarks/gap_stages/seed_20261223",
     "stress_first_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
                              "--jobs 1 --campaign none --out benchmarks/gap_tip/stress_first_20261206.md",
     "stress_wide_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 104 --jobs 1 --campaign none "
@@ -888,7 +891,9 @@ def gap_figures() -> list[Fig]:
          "the seed-20261201 rows are the current code"),
         ("benchmarks/gap_stages/seed_20261201", "gap_stages_20261201", "; made before the wider blocked-stage form of "
          "stress-dependent hysteresis, the seed-20261207 rows are the current code"),
-        ("benchmarks/gap_stages/seed_20261207", "gap_stages_20261207", ""),
+        ("benchmarks/gap_stages/seed_20261207", "gap_stages_20261207", "; the seed-20261223 rows are the current code "
+         "(2026-12-06)"),
+        ("benchmarks/gap_stages/seed_20261223", "gap_stages_20261223", ""),
     ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())
