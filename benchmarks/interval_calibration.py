@@ -52,32 +52,19 @@ def _records(path: Path) -> list[dict]:
     return [json.loads(line) for line in gzip.open(f, "rt") if line.strip()]
 
 
-def tip_cases(recs: list[dict], campaign: str) -> list[dict]:
-    """The scored cases of single-effect tip records: prediction, truth, bootstrap interval, effect."""
-    from selfsense.gap.blind import _tip_scored, _truth
-
-    _, rows = _tip_scored(recs)
-    out = []
-    for r, x in zip(recs, rows):
-        if not x["scored"]:
-            continue
-        e = x["effect"]
-        lo, hi = (r.get("interval_blocks") or r["interval"])[e]
-        out.append({"campaign": campaign, "case": int(r["case"]), "effect": e, "pred": float(r["predicted_shrink"][e]),
-                    "true": float(_truth(r, e)), "lo": float(lo), "hi": float(hi)})
-    return out
-
-
-def small_cases(recs: list[dict], campaign: str) -> list[dict]:
-    """The cases named right (top-1) whose true shrink is within 3 tip noise floors of 0: not scored by the tip tier,
-    not used to calibrate; their coverage says what the interval holds where the effect's tip consequence is noise."""
+def tip_cases(recs: list[dict], campaign: str, scored: bool = True) -> list[dict]:
+    """Prediction, truth, bootstrap interval and effect of single-effect tip records: the cases the tip tier scores
+    (named top-1, a true shrink beyond 3 tip noise floors), or with ``scored=False`` the cases named right whose truth
+    is within 3 floors of 0 (not used to calibrate; their coverage says what the interval holds where the effect's
+    tip consequence is noise)."""
     from selfsense.gap.blind import _tip_scored, _truth
 
     _, rows = _tip_scored(recs)
     out = []
     for r, x in zip(recs, rows):
         e = x["effect"]
-        if x["scored"] or not x["named"] or r["predicted_shrink"].get(e) is None:
+        if not (x["scored"] if scored else (x["named"] and not x["scored"] and
+                                            r["predicted_shrink"].get(e) is not None)):
             continue
         lo, hi = (r.get("interval_blocks") or r["interval"])[e]
         out.append({"campaign": campaign, "case": int(r["case"]), "effect": e, "pred": float(r["predicted_shrink"][e]),
@@ -162,7 +149,8 @@ def report(calib: list[dict], held: dict[str, list[dict]], factor: float, comman
         cs = [c for c in calib if c["effect"] == e]
         u = calibrate([c for c in calib if c["effect"] != e])
         L.append(f"| {e} | {len(cs)} | {f2(cov(cs, 1.0))} | {f2(cov(cs, factor))} | {u:.2f} | {f2(cov(cs, u))} |")
-    small = [c for name in CALIBRATION for c in small_cases(_records(ROOT / "benchmarks" / "gap_tip" / name), name)]
+    small = [c for name in CALIBRATION
+             for c in tip_cases(_records(ROOT / "benchmarks" / "gap_tip" / name), name, scored=False)]
     if small:
         below = sum(c["true"] < min(c["lo"], c["pred"]) for c in small)
         L += ["", "## Where the truth is within noise (not calibrated on)", "",
