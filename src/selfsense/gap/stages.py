@@ -235,6 +235,19 @@ def _c_one_sided(s, ctx, g):
     return np.column_stack([first * v, (rm - v) * (1 - (rm - v))])
 
 
+def _c_virgin(s, ctx, g):
+    """The first-loading (virgin) curve as a function of the trial's running maximum of the charge: from the relaxed
+    state after the relay short, material that a unipolar drive switches on at first loading and never off (a
+    Preisach lobe beta < 0 < alpha: an initial ascending curve above the later branches)
+    adds a contribution that grows with max_{t' <= t} Q(t') and is constant once the trial has passed its maximum.
+    Two columns (running maximum and its square, in units of the free-tip charge range): a smooth rise of either
+    curvature. In the blocked stage it is a voltage V_H(q) that the stand-in's H(Q) does not have; in the mechanical
+    stage it is charge that the measured Q lost while the first-loading current exceeded the shunt channel's range
+    (the laser follows the actuator's true charge, the lost part grows with the running maximum)."""
+    r = np.maximum.accumulate(s.Q / ctx["q_span"])
+    return np.column_stack([r, r * r])
+
+
 def _per_trial(s, ctx, B):
     out = np.zeros((B.shape[0], B.shape[1] * ctx["n_trials"]))
     k = ctx["trial_index"][s.name]
@@ -330,6 +343,11 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
            "operator state not relaxed at the start: a play pre-driven to +r"),
     Member("hysteresis.one_sided", "hysteresis", "electrical", _c_one_sided,
            physics="first-loading (virgin) curve differs from the later branches"),
+    Member("hysteresis.one_sided@blocked", "hysteresis", "blocked", _c_virgin,
+           physics="first-loading (virgin) curve on the blocked tip: V = Q / (n_A C_p) + H(Q) + g(max Q so far)"),
+    Member("hysteresis.one_sided@mechanical", "hysteresis", "mechanical", _c_virgin,
+           physics="first-loading current beyond the shunt channel's range: the measured charge lost a part that "
+                   "grows with the trial's running maximum, x = a (Q + g(max Q so far))"),
     # load stage: load cell against the nominal force estimate on force-reference trials
     Member("load.stress_hysteresis", "load", "load", _c_stress, physics="H(q) scaled by the tip load: f^ V, f^2"),
     # blocked stage: V against Q on blocked-tip trials (reference-free)
