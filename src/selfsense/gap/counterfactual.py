@@ -89,8 +89,7 @@ CORRECTION_KIND = {
     "slow.leakage@el": "charge_el", "slow.offset_drift@el": "charge_el", "slow.temperature@el": "charge_el",
     "rate.amplifier": "voltage_amp", "hysteresis.preload": "voltage_el", "hysteresis.one_sided": "voltage_el",
     "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
-    "load.stress_hysteresis@blocked_h": "voltage_blk", "hysteresis.one_sided@blocked": "voltage_blk",
-    "hysteresis.one_sided@mechanical": "charge_mech"}
+    "load.stress_hysteresis@blocked_h": "voltage_blk", "hysteresis.one_sided@mechanical": "charge_mech"}
 #: chain members that enter no row of the chain's H(q) calibration (the tip's charge-free creep: columns of the
 #: sensing regression, identified after H(q); the temperature member: decided after the sensing regression, its
 #: recalibrations on the corrected charges select H(q) again, ``SelfSensingEstimator._temperature_refit``); a

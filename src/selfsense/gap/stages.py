@@ -235,17 +235,18 @@ def _c_one_sided(s, ctx, g):
     return np.column_stack([first * v, (rm - v) * (1 - (rm - v))])
 
 
-def _c_virgin(s, ctx, g):
-    """The first-loading (virgin) curve as a function of the trial's running maximum of the charge: from the relaxed
-    state after the relay short, material that a unipolar drive switches on at first loading and never off (a
-    Preisach lobe beta < 0 < alpha: an initial ascending curve above the later branches)
-    adds a contribution that grows with max_{t' <= t} Q(t') and is constant once the trial has passed its maximum.
-    Two columns (running maximum and its square, in units of the free-tip charge range): a smooth rise of either
-    curvature. In the blocked stage it is a voltage V_H(q) that the stand-in's H(Q) does not have; in the mechanical
-    stage it is charge that the measured Q lost while the first-loading current exceeded the shunt channel's range
-    (the laser follows the actuator's true charge, the lost part grows with the running maximum)."""
-    r = np.maximum.accumulate(s.Q / ctx["q_span"])
-    return np.column_stack([r, r * r])
+def _c_lost_charge(s, ctx, g):
+    """Charge the measurement lost while the shunt channel sat at its rail: per trial, the time spent at the upper and
+    at the lower rail so far (cumulative, in seconds over the trial's length; one coefficient each = the mean current
+    beyond the range). The rail is the channel's extreme value over the whole dataset, counted only where at least
+    three samples sit exactly on it (a saturated in-amp or ADC holds one value while the current goes on). Zero in a
+    trial that never reaches it, so the member says nothing where nothing clipped."""
+    hi, lo = ctx["i_rail"]
+    n = len(s)
+    up = np.cumsum(s.i >= hi) * s.dt if np.isfinite(hi) else np.zeros(n)
+    dn = np.cumsum(s.i <= lo) * s.dt if np.isfinite(lo) else np.zeros(n)
+    T = max(n * s.dt, s.dt)
+    return np.column_stack([up / T, dn / T])
 
 
 def _per_trial(s, ctx, B):
@@ -343,11 +344,10 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
            "operator state not relaxed at the start: a play pre-driven to +r"),
     Member("hysteresis.one_sided", "hysteresis", "electrical", _c_one_sided,
            physics="first-loading (virgin) curve differs from the later branches"),
-    Member("hysteresis.one_sided@blocked", "hysteresis", "blocked", _c_virgin,
-           physics="first-loading (virgin) curve on the blocked tip: V = Q / (n_A C_p) + H(Q) + g(max Q so far)"),
-    Member("hysteresis.one_sided@mechanical", "hysteresis", "mechanical", _c_virgin,
-           physics="first-loading current beyond the shunt channel's range: the measured charge lost a part that "
-                   "grows with the trial's running maximum, x = a (Q + g(max Q so far))"),
+    Member("hysteresis.one_sided@mechanical", "hysteresis", "mechanical", _c_lost_charge,
+           physics="first-loading (virgin) current beyond the shunt channel's range: the measured charge lost what "
+                   "flowed while the channel sat at its rail, x = a (Q + c_up t_up(t) + c_dn t_dn(t)), t_up / t_dn the "
+                   "time at the upper / lower rail so far in the trial"),
     # load stage: load cell against the nominal force estimate on force-reference trials
     Member("load.stress_hysteresis", "load", "load", _c_stress, physics="H(q) scaled by the tip load: f^ V, f^2"),
     # blocked stage: V against Q on blocked-tip trials (reference-free)
@@ -516,7 +516,11 @@ def _context(sigs: list[StageSignals]) -> dict:
     blk = [s for s in sigs if s.tip == "blocked" and "f_hat" in s.extra]
     qq = sum(float(s.Q @ s.Q) for s in blk)
     kappa = sum(float(s.extra["f_hat"] @ s.Q) for s in blk) / qq if qq > 0 else 0.0
-    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "f_span": f_span or 1.0, "kappa": kappa or 1.0,
+    # the shunt channel's rails: its extreme values over the dataset where >= 3 samples sit exactly on them
+    i_all = np.concatenate([s.i for s in sigs])
+    hi, lo = float(np.max(i_all)), float(np.min(i_all))
+    rail = (hi if np.sum(i_all == hi) >= 3 else np.inf, lo if np.sum(i_all == lo) >= 3 else -np.inf)
+    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "i_rail": rail, "f_span": f_span or 1.0, "kappa": kappa or 1.0,
             "order_mid": 0.5 * (min(s.order for s in sigs) + max(s.order for s in sigs)),
             "trial_index": {}}
 
