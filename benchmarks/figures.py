@@ -46,6 +46,7 @@ DATES = {
     "gap_stages_20261201": "2026-12-01",
     "gap_stages_20261207": "2026-12-02",
     "gap_stages_20261223": "2026-12-06",
+    "gap_stages_20261226": "2026-12-06",
     "stress_first_20261206": "2026-12-02",
     "stress_wide_20261206": "2026-12-02",
     "stress_solve_20261206": "2026-12-03",
@@ -184,6 +185,8 @@ COMMANDS = {
                            "--out benchmarks/gap_stages/seed_20261207",
     "gap_stages_20261223": "selfsense gap blind --n 1000 --seed 20261223 --jobs 2 "
                            "--out benchmarks/gap_stages/seed_20261223",
+    "gap_stages_20261226": "selfsense gap blind --n 1000 --seed 20261226 --jobs 2 "
+                           "--out benchmarks/gap_stages/seed_20261226",
     "stress_first_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
                              "--jobs 1 --campaign none --out benchmarks/gap_tip/stress_first_20261206.md",
     "stress_wide_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 104 --jobs 1 --campaign none "
@@ -893,7 +896,10 @@ def gap_figures() -> list[Fig]:
          "stress-dependent hysteresis, the seed-20261207 rows are the current code"),
         ("benchmarks/gap_stages/seed_20261207", "gap_stages_20261207", "; the seed-20261223 rows are the current code "
          "(2026-12-06)"),
-        ("benchmarks/gap_stages/seed_20261223", "gap_stages_20261223", ""),
+        ("benchmarks/gap_stages/seed_20261223", "gap_stages_20261223", "; made before the lost-charge form of the "
+         "first-loading member, the seed-20261226 rows are the current code (the code before it on that seed: "
+         "benchmarks/gap_stages/seed_20261226_before, family top-1 0.849)"),
+        ("benchmarks/gap_stages/seed_20261226", "gap_stages_20261226", ""),
     ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())

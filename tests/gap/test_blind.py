@@ -1,8 +1,7 @@
-"""Blind check of the stage-wise diagnostic: the committed 1,000-case campaigns (benchmarks/gap_stages, seed 7,
-benchmarks/gap_stages/seed_16180, benchmarks/gap_stages/seed_31337, and benchmarks/gap_stages/seed_20261201, the
-current code and simulator) reproduce
-from their records and, case by case (the current code's campaign), on this machine (within stated tolerances, never
-bit for bit across machines), and a fast tier of new cases meets floors derived from the campaign."""
+"""Blind check of the stage-wise diagnostic: the committed 1,000-case campaigns (benchmarks/gap_stages: seed 7 and
+the seed_* folders; seed_20261226 is the current code and simulator) reproduce from their records and, case by case
+(the current code's campaign), on this machine (within stated tolerances, never bit for bit across machines), and a
+fast tier of new cases meets floors derived from the campaign."""
 from __future__ import annotations
 
 import gzip
@@ -16,7 +15,7 @@ from selfsense.determinism import STAGE_RMS_RTOL
 from selfsense.gap import blind
 
 ROOT = Path(__file__).resolve().parents[2]
-CAMPAIGN = ROOT / "benchmarks" / "gap_stages" / "seed_20261207"   #: made with the current diagnostic and simulator
+CAMPAIGN = ROOT / "benchmarks" / "gap_stages" / "seed_20261226"   #: made with the current diagnostic and simulator
 
 
 def _records(folder: Path) -> list[dict]:
@@ -30,7 +29,10 @@ def records():
 
 
 @pytest.mark.parametrize("folder", [CAMPAIGN.parent, CAMPAIGN.parent / "seed_16180", CAMPAIGN.parent / "seed_31337",
-                                    CAMPAIGN.parent / "seed_20261201", CAMPAIGN])
+                                    CAMPAIGN.parent / "seed_20261201", CAMPAIGN.parent / "seed_20261207",
+                                    CAMPAIGN.parent / "seed_20261223", CAMPAIGN.parent / "seed_20261225_before",
+                                    CAMPAIGN.parent / "seed_20261225_runmax", CAMPAIGN.parent / "seed_20261226_before",
+                                    CAMPAIGN])
 def test_committed_scores_recompute_from_the_records(folder):
     records = _records(folder)
     sc = blind.score(records)
