@@ -85,6 +85,7 @@ DATES = {
     "gap_tip_20261218": "2026-12-05",
     "gap_tip_20261219": "2026-12-05",
     "gap_tip_20261221": "2026-12-06",
+    "gap_tip_20261224": "2026-12-06",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -219,6 +220,7 @@ COMMANDS = {
     "gap_tip_20261221": "selfsense gap blind --tip --n 80 --seed 20261221 --jobs 2 --out benchmarks/gap_tip/seed_20261221 "
                         "(the code before the widened interval), then python benchmarks/interval_calibration.py --apply "
                         "benchmarks/gap_tip/seed_20261221 --out benchmarks/gap_tip/seed_20261221",
+    "gap_tip_20261224": "selfsense gap blind --tip --n 80 --seed 20261224 --jobs 2 --out benchmarks/gap_tip/seed_20261224",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -879,7 +881,8 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261216": "(before the temperature trend refit held the form) ",
                   "gap_tip_20261217_160": "(before the lag member) ",
                   "gap_tip_20261218": "(before the joint hold candidate) ",
-                  "gap_tip_20261219": "(before the widened interval) "}
+                  "gap_tip_20261219": "(before the widened interval) ",
+                  "gap_tip_20261221": "(before the lost-charge member) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -958,7 +961,10 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_20261219", "gap_tip_20261219",
          "; made before the 90 % interval's upper side was widened (2026-12-06: the block bootstrap alone); the "
          "seed-20261221 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261221", "gap_tip_20261221", ""),
+        ("benchmarks/gap_tip/seed_20261221", "gap_tip_20261221",
+         "; made before the lost-charge form of the first-loading member (2026-12-06); the seed-20261224 rows are the "
+         "current code"),
+        ("benchmarks/gap_tip/seed_20261224", "gap_tip_20261224", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
