@@ -520,7 +520,8 @@ def _context(sigs: list[StageSignals]) -> dict:
     i_all = np.concatenate([s.i for s in sigs])
     hi, lo = float(np.max(i_all)), float(np.min(i_all))
     rail = (hi if np.sum(i_all == hi) >= 3 else np.inf, lo if np.sum(i_all == lo) >= 3 else -np.inf)
-    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "i_rail": rail, "f_span": f_span or 1.0, "kappa": kappa or 1.0,
+    return {"q_span": q_span, "v_span": v_span, "slew": imax / C, "i_rail": rail, "f_span": f_span or 1.0,
+            "kappa": kappa or 1.0,
             "order_mid": 0.5 * (min(s.order for s in sigs) + max(s.order for s in sigs)),
             "trial_index": {}}
 
