@@ -208,3 +208,49 @@ def test_a_held_form_is_a_shortcut_the_adopted_refit_does_not_keep(clean, drifte
     assert held.coef_ == auto.coef_
     sel = held.fit_report_["hysteresis"]["selection"]
     assert len(sel) == len(auto.fit_report_["hysteresis"]["selection"]) > 2   # the whole selection, not the held pair
+
+
+def test_anchor_evidence_measures_the_campaign_change_and_the_rms_it_removes():
+    from selfsense.chain.temperature import anchor_evidence
+
+    anchors = [{"k": k, "tip": tip, "s": 1.0 + off + 3e-4 * (k - 1.5) + e, "trial": f"t{k}"}
+               for k, tip, off, e in [(0, "free", 4e-4, 1e-5), (1, "blocked", -2e-4, -1e-5), (2, "free", 4e-4, -2e-5),
+                                      (3, "free", 4e-4, 1e-5), (6, "blocked", -2e-4, 1e-5)]]
+    ev = anchor_evidence(anchors, 1.5, 8)
+    assert ev["identified"] and ev["threshold"] == MIN_CAMPAIGN_CHANGE
+    assert ev["slope_per_trial"] == pytest.approx(3e-4, rel=0.1)
+    assert ev["campaign_change"] == pytest.approx(7 * abs(ev["slope_per_trial"]), rel=1e-12)
+    # the trend takes the drift out: what is left is the anchors' scatter (1e-5), far below the RMS about the offsets
+    assert ev["rms_trend"] < 2e-5 < 3e-4 < ev["rms_offsets"]
+    one = anchor_evidence([{"k": 0, "tip": "free", "s": 1.0}, {"k": 5, "tip": "blocked", "s": 1.002}], 0.5, 6)
+    assert not one["identified"] and "two positions" in one["why"]
+
+
+def test_the_gap_diagnostic_names_the_drift_from_the_chains_anchors_and_not_on_an_effect_free_device(clean,
+                                                                                                     drifted_fits):
+    """The diagnostic's stage ``anchors`` reads the fitted chain (here without the member, as the default estimator
+    runs): it names ``slow.temperature`` on the drifted device by the rule that adopts the member (campaign change >=
+    MIN_CAMPAIGN_CHANGE), and nothing on the same device without the drift."""
+    from selfsense.gap.blind import load_stage_thresholds
+    from selfsense.gap.pipeline import why_not
+    from selfsense.gap.stages import ANCHOR_MEMBER, anchor_stage, diagnose_stages
+
+    tr, me, rig = clean
+    dr, auto, off = drifted_fits
+    st = anchor_stage(off, dr, me)
+    assert st["observed"] and [a["member"] for a in st["accepted"]] == [ANCHOR_MEMBER]
+    assert st["gains_alone"][ANCHOR_MEMBER] >= MIN_CAMPAIGN_CHANGE
+    assert st["rms_after"] < st["rms_nominal"]
+    assert set(st["trials"]) == {t for t, m in me.iterrows() if m["tip"] in ("free", "blocked")}
+    # the chain that carries the member reads the anchors it was adopted on, not those its correction leaves
+    assert anchor_stage(auto, dr, me)["gains_alone"][ANCHOR_MEMBER] == pytest.approx(
+        auto.temperature_["campaign_change_first"], rel=1e-12)
+    thr = load_stage_thresholds()
+    v = diagnose_stages(dr, me, rig, thr, fitted=off)
+    e = next(x for x in v["effects"] if x["effect"] == "slow.temperature")
+    assert any(a["stage"] == "anchors" for a in e["acceptances"])
+    v0 = diagnose_stages(tr, me, rig, thr, fitted=_fit(tr, me, rig, "off"))
+    assert v0["stages"]["anchors"]["observed"] and not v0["stages"]["anchors"]["accepted"]
+    assert "slow.temperature" not in [x["effect"] for x in v0["effects"]]
+    row = next(r for r in why_not({**v0, "thresholds": thr}) if r["member"] == ANCHOR_MEMBER)
+    assert not row["accepted"] and row["threshold"] == MIN_CAMPAIGN_CHANGE and "below" in row["why"]

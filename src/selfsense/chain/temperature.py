@@ -42,8 +42,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["ANCHOR_TIPS", "MIN_CAMPAIGN_CHANGE", "SCALE_STEPS", "anchor_scale", "anchor_trend", "anchors_of",
-           "calibration_position", "campaign_scales",
+__all__ = ["ANCHOR_TIPS", "MIN_CAMPAIGN_CHANGE", "SCALE_STEPS", "anchor_evidence", "anchor_scale", "anchor_trend",
+           "anchors_of", "calibration_position", "campaign_scales",
            "secant_slope"]
 
 #: the tip states whose relation fixes one output of eq. (52): the free tip (zero force), the blocked tip (zero
@@ -83,6 +83,24 @@ def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
     if np.linalg.matrix_rank(X) < X.shape[1]:
         return None, "the anchors' positions do not separate a trend from the tip offsets"
     return float(np.linalg.lstsq(X, y, rcond=None)[0][-1]), ""
+
+
+def anchor_evidence(anchors: list[dict], k_c: float, n_trials: int) -> dict:
+    """The anchors' evidence of a charge scale drifting over the campaign, as the gap diagnostic reads it (its stage
+    ``anchors``, docs/gap.md): the slope ``b`` of :func:`anchor_trend`, the campaign change ``|b| max(n_trials - 1, 1)``
+    that ``auto`` compares with :data:`MIN_CAMPAIGN_CHANGE`, and the RMS of the anchors' scales about their tip offsets
+    without and with the trend (``rms_offsets``, ``rms_trend``). ``identified`` False (with ``why``) where the slope is
+    not identified."""
+    out = {"anchors": [dict(a) for a in anchors], "k_c": float(k_c), "threshold": MIN_CAMPAIGN_CHANGE}
+    b, why = anchor_trend(anchors, k_c)
+    if b is None:
+        return {**out, "identified": False, "why": why}
+    tips = sorted({a["tip"] for a in anchors})
+    X = np.array([[float(a["tip"] == t) for t in tips] + [a["k"] - k_c] for a in anchors])
+    y = np.array([a["s"] - 1.0 for a in anchors])
+    rms = [float(np.sqrt(np.mean((y - Z @ np.linalg.lstsq(Z, y, rcond=None)[0]) ** 2))) for Z in (X[:, :-1], X)]
+    return {**out, "identified": True, "slope_per_trial": float(b),
+            "campaign_change": abs(float(b)) * max(int(n_trials) - 1, 1), "rms_offsets": rms[0], "rms_trend": rms[1]}
 
 
 def secant_slope(b0: float, b1: float, d1: float) -> float:

@@ -330,10 +330,13 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     the same base (``true_all_from_base``). Where the case holds an effect of :data:`EXCITATION_EFFECTS` (the
     amplifier's limits) both truths are taken from the excitation-matched twin instead (:func:`matched_twin_error`,
     recorded as ``error_without_matched``; for a joint case: without any of its effects, driven with the voltage the
-    case's amplifier applied), while ``true_shrink`` keeps the effect-free twin (:func:`set_model_truths`)."""
+    case's amplifier applied), while ``true_shrink`` keeps the effect-free twin (:func:`set_model_truths`).
+    ``named_by``: the stages that named each effect; ``anchor_change`` / ``twin_anchor_change``: the campaign change of
+    the fitted chain's anchors (stage ``anchors``) on the case and on its effect-free twin (the member's null)."""
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
-    from .counterfactual import _summary, counterfactual, tip_table
+    from .counterfactual import _make, _summary, counterfactual, tip_table
+    from .stages import ANCHOR_MEMBER, anchor_stage
 
     c = draw_tip_case(i, seed) if case is None else case
     thr = load_stage_thresholds() if thresholds is None else thresholds
@@ -341,18 +344,23 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     fam, ds, ns, eff = c["family"], c["device_seed"], c["noise_seed"], c["effects"]
     t0 = time.perf_counter()
     tr, me, rig, truth = simulate_family_case(fam, ds, eff, ns, T_CASE, FS_CASE, with_truth=True)
-    d = diagnose_stages(tr, me, rig, thr)
     fitted = mk(rig).fit(tr, me)
+    d = diagnose_stages(tr, me, rig, thr, fitted=fitted)
     cf = counterfactual(tr, me, rig, d, mk, n_boot=100, seed=int(i), max_effects=max_effects, fitted=fitted)
     tr0, me0, rig0 = simulate_family_case(fam, ds, {}, ns, T_CASE, FS_CASE)
     trn, men, rign = simulate_family_case(fam, ds, {}, ns + 104_729, T_CASE, FS_CASE)
-    e_without = _summary(tip_table(tr0, me0, rig0, mk))["mean"]
+    fit0 = _make(mk, rig0).fit(tr0, me0)   # the twin's estimator, as tip_table fits it; its anchors: the null
+    e_without = _summary(tip_table(tr0, me0, rig0, mk, estimator=fit0))["mean"]
+    twin_anchors = anchor_stage(fit0, tr0, me0).get("gains_alone", {}).get(ANCHOR_MEMBER)
     e_noise = _summary(tip_table(trn, men, rign, mk))["mean"]
     e_matched = matched_twin_error(c, mk, truth) if set(eff) & EXCITATION_EFFECTS else None
     base = {k: v["base"]["mean"] for k, v in cf["effects"].items()}
     base_all = cf["base"]["mean"] if "base" in cf else cf["before"]["mean"]
     out = {"case": int(i), "seed": int(seed), "family": fam, "manifest": c, "top": d["top"],
            "effects": [e["effect"] for e in d["effects"]], "before": cf["before"]["mean"],
+           "named_by": {e["effect"]: sorted({a["stage"] for a in e["acceptances"]}) for e in d["effects"]},
+           "anchor_change": d["stages"].get("anchors", {}).get("gains_alone", {}).get(ANCHOR_MEMBER),
+           "twin_anchor_change": twin_anchors,
            "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
            "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
            "interval_blocks": {k: v["shrink_interval_90_blocks"] for k, v in cf["effects"].items()},

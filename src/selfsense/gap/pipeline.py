@@ -36,10 +36,12 @@ def why_not(verdict: dict) -> list[dict]:
         for m, g in d["gains_alone"].items():
             if m == "generic":
                 continue
-            t = float(thr.get(m, np.nan))
+            t = float(d.get("thresholds", {}).get(m, thr.get(m, np.nan)))
             if m in acc:
                 a = acc[m]
-                why = f"accepted: held-out gain {a['gain']:.3f} > threshold {a['threshold']:.3f}"
+                why = (f"accepted: the chain's anchors change by {a['gain']:.2g} over the campaign >= threshold "
+                       f"{a['threshold']:.2g}" if st == "anchors" else
+                       f"accepted: held-out gain {a['gain']:.3f} > threshold {a['threshold']:.3f}")
                 if a.get("note"):
                     why += f"; named {a['effect']}: {a['note']}"
             elif any(n.startswith(m + ":") for n in d.get("notes", [])):
@@ -47,6 +49,8 @@ def why_not(verdict: dict) -> list[dict]:
             elif g > t:
                 why = (f"gain {g:.3f} alone is above its threshold {t:.3f}, but once the accepted members were in "
                        "the stage model it no longer was (they explain the same residual)")
+            elif st == "anchors":
+                why = f"the chain's anchors change by {g:.2g} over the campaign, below the member's threshold {t:.2g}"
             else:
                 why = f"held-out gain {g:.3f} is below its null threshold {t:.3f}"
             rows.append({"stage": st, "member": m, "gain_alone": float(g), "threshold": t, "accepted": m in acc,
@@ -65,7 +69,7 @@ def diagnose_dataset(trials: dict, meta: pd.DataFrame, rig, make_estimator, fitt
     from .stages import diagnose_stages
 
     thr = load_stage_thresholds() if thresholds is None else thresholds
-    v = diagnose_stages(trials, meta, rig, thr)
+    v = diagnose_stages(trials, meta, rig, thr, fitted=fitted)
     chain = fitted is not None and hasattr(fitted, "members")
     cf = counterfactual(trials, meta, rig, v, make_estimator, n_boot=n_boot, seed=seed, fitted=fitted,
                         refit_outputs=refit_outputs, workers=workers,

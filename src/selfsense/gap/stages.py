@@ -730,10 +730,49 @@ def stage_residuals(trials: dict, meta: pd.DataFrame, rig) -> dict:
     return out
 
 
-def diagnose_stages(trials: dict, meta: pd.DataFrame, rig, thresholds: dict) -> dict:
+#: the stage read from the fitted chain itself and its one member (:func:`anchor_stage`)
+ANCHOR_MEMBER = "slow.temperature@anchors"
+
+
+def anchor_stage(fitted, trials: dict, meta: pd.DataFrame) -> dict:
+    """Stage ``anchors``: the fitted chain's own reference-free evidence of a charge scale drifting over the campaign
+    (:func:`selfsense.chain.temperature.anchor_evidence`: every free- and blocked-tip trial, validation trials
+    included, only V and Q read). Its member names the temperature drift where the campaign change reaches the
+    threshold at which the estimator's temperature member (``temperature: auto``) is adopted, so that the diagnosis
+    and the chain decide by one rule. The stages above see the free-tip calibration trials (early in the campaign) or
+    fit V against Q through a stand-in H(q); the chain's anchors read the drift through the same V_p = V - H(q) that
+    costs Table 3 (docs/gap.md, "The chain's anchors")."""
+    from selfsense.chain import temperature as tm
+
+    meta = meta.set_index("trial") if "trial" in meta.columns else meta
+    try:
+        # where the chain carries the member, the anchors it was adopted on (before its correction)
+        anchors = (getattr(fitted, "temperature_", None) or {}).get("anchors_first") or \
+            fitted._temperature_anchors(trials, meta)
+        ev = tm.anchor_evidence(anchors, tm.calibration_position(meta), len(meta))
+    except Exception as exc:  # noqa: BLE001 - the stage is then unobserved, and says why
+        return {"stage": "anchors", "observed": False, "notes": [f"anchors not read: {type(exc).__name__}: {exc}"]}
+    if not ev["identified"]:
+        return {"stage": "anchors", "observed": False, "notes": [ev["why"]], "evidence": ev}
+    g, thr = ev["campaign_change"], ev["threshold"]
+    d = {"stage": "anchors", "observed": True, "rms_nominal": ev["rms_offsets"], "rms_after": ev["rms_offsets"],
+         "rms_target": float("nan"), "n_rows": len(ev["anchors"]), "trials": [a["trial"] for a in ev["anchors"]],
+         "accepted": [], "generic_gain_after": float("nan"), "unexplained": False, "notes": [], "shrink_alone": {},
+         "gains_alone": {ANCHOR_MEMBER: g}, "thresholds": {ANCHOR_MEMBER: thr}, "evidence": ev}
+    if g >= thr:
+        d["rms_after"] = ev["rms_trend"]
+        d["shrink_alone"][ANCHOR_MEMBER] = ev["rms_offsets"] - ev["rms_trend"]
+        d["accepted"].append({"member": ANCHOR_MEMBER, "effect": "slow.temperature", "family": "slow", "gain": g,
+                              "threshold": thr, "grid_value": None, "unit": "", "rms_before": ev["rms_offsets"],
+                              "rms_after": ev["rms_trend"]})
+    return d
+
+
+def diagnose_stages(trials: dict, meta: pd.DataFrame, rig, thresholds: dict, fitted=None) -> dict:
     """The stage-wise verdict of a dataset: per stage the nominal held-out RMS, accepted members with their
     gains, thresholds, stage-fitted grid values and shrink, the open-set flag; then the named effects ranked by
-    their gain over threshold."""
+    their gain over threshold. ``fitted``: the configured estimator fitted on the dataset; where given (and it has
+    the temperature member's anchors) the stage ``anchors`` is read from it (:func:`anchor_stage`)."""
     sigs, ctx = prepare_signals(trials, meta, rig)
     stages = {}
     for st in STAGES:
@@ -742,6 +781,8 @@ def diagnose_stages(trials: dict, meta: pd.DataFrame, rig, thresholds: dict) -> 
                       else {"observed": True, **diagnose_stage(sm, thresholds)})
     _head_to_head(stages)
     _cross_stage(stages)
+    if fitted is not None and hasattr(fitted, "_temperature_anchors"):
+        stages["anchors"] = anchor_stage(fitted, trials, meta)
     effects: dict = {}
     for st, d in stages.items():
         for a in d.get("accepted", []):

@@ -349,7 +349,9 @@ def _gap_section(gap: Path, results_dir: Path) -> list[str]:
                  "electrical": "electrical (measured charge against the actuator voltage, free-tip trials)",
                  "mechanical": "mechanical (laser against the measured charge, free-tip trials)",
                  "blocked": "blocked (actuator voltage against the measured charge, blocked-tip trials, no reference)",
-                 "load": "load (load cell against the nominal force estimate, force trials)"}
+                 "load": "load (load cell against the nominal force estimate, force trials)",
+                 "anchors": "anchors (the fitted chain's charge scale on free- and blocked-tip trials, no reference: "
+                            "RMS about the tip offsets, without and with a trend over the campaign)"}
         rows = []
         order = [k for k in ("holds", "electrical", "mechanical", "blocked", "load") if k in vd["stages"]]
         for st in order + [k for k in vd["stages"] if k not in order]:
