@@ -22,7 +22,8 @@ def test_stage_diagnose_cli_on_the_sample(tmp_path):
     out = tmp_path / "gap"
     assert main(["diagnose", str(SAMPLE), "--out", str(out), "--no-figures"]) == 0
     v = json.loads((out / "verdict.json").read_text())
-    assert set(v["stages"]) == {"holds", "electrical", "mechanical", "blocked", "load"}
+    # the five stages of the signals and the one read from the fitted chain (its temperature anchors)
+    assert set(v["stages"]) == {"holds", "electrical", "mechanical", "blocked", "load", "anchors"}
     assert v["stages"]["mechanical"]["observed"]
     case = load_case(SAMPLE, with_truth=False)
     ref = _summary(tip_table(case.trials, case.meta, case.rig,
