@@ -86,6 +86,8 @@ DATES = {
     "gap_tip_20261219": "2026-12-05",
     "gap_tip_20261221": "2026-12-06",
     "gap_tip_20261224": "2026-12-06",
+    "gap_tip_20261227": "2026-12-06",
+    "gap_tip_20261228": "2026-12-06",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -221,6 +223,8 @@ COMMANDS = {
                         "(the code before the widened interval), then python benchmarks/interval_calibration.py --apply "
                         "benchmarks/gap_tip/seed_20261221 --out benchmarks/gap_tip/seed_20261221",
     "gap_tip_20261224": "selfsense gap blind --tip --n 80 --seed 20261224 --jobs 2 --out benchmarks/gap_tip/seed_20261224",
+    "gap_tip_20261227": "selfsense gap blind --tip --n 80 --seed 20261227 --jobs 2 --out benchmarks/gap_tip/seed_20261227",
+    "gap_tip_20261228": "selfsense gap blind --tip --n 80 --seed 20261228 --jobs 2 --out benchmarks/gap_tip/seed_20261228",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -882,7 +886,9 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261217_160": "(before the lag member) ",
                   "gap_tip_20261218": "(before the joint hold candidate) ",
                   "gap_tip_20261219": "(before the widened interval) ",
-                  "gap_tip_20261221": "(before the lost-charge member) "}
+                  "gap_tip_20261221": "(before the lost-charge member) ",
+                  "gap_tip_20261224": "(before the anchors stage) ",
+                  "gap_tip_20261227": "(the anchors stage not yet a fallback) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -964,7 +970,13 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_20261221", "gap_tip_20261221",
          "; made before the lost-charge form of the first-loading member (2026-12-06); the seed-20261224 rows are the "
          "current code"),
-        ("benchmarks/gap_tip/seed_20261224", "gap_tip_20261224", ""),
+        ("benchmarks/gap_tip/seed_20261224", "gap_tip_20261224",
+         "; made before the gap diagnostic's stage of the chain's anchors (2026-12-06); the seed-20261228 rows are the "
+         "current code"),
+        ("benchmarks/gap_tip/seed_20261227", "gap_tip_20261227",
+         "; the anchors stage's first contact, before it became a fallback (named wherever its campaign change reached "
+         "the rule); the seed-20261228 rows are the current code"),
+        ("benchmarks/gap_tip/seed_20261228", "gap_tip_20261228", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
