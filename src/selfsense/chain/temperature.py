@@ -71,6 +71,13 @@ def anchor_scale(cost, steps=SCALE_STEPS) -> tuple[float, float]:
     return 1.0 + d, (at_one / at_min if at_min > 0 else float("inf")) if at_one > 0 else 1.0
 
 
+def _trend_rows(anchors: list[dict], k_c: float) -> tuple[np.ndarray, np.ndarray]:
+    """The anchors' regression: one offset column per tip state, then the position ``k - k_c``; target ``s - 1``."""
+    tips = sorted({a["tip"] for a in anchors})
+    return (np.array([[float(a["tip"] == t) for t in tips] + [a["k"] - k_c] for a in anchors]),
+            np.array([a["s"] - 1.0 for a in anchors]))
+
+
 def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
     """The slope ``b`` [per trial] of the anchors' scales on their position ``k - k_c``, with one offset per tip
     state, or ``(None, why)`` where it is not identified. ``anchors``: ``{"k", "tip", "s"}`` per anchor trial."""
@@ -78,8 +85,7 @@ def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
     by_tip = {t: {a["k"] for a in anchors if a["tip"] == t} for t in tips}
     if not any(len(v) >= 2 for v in by_tip.values()):
         return None, "no free- or blocked-tip trial at two positions of the campaign"
-    X = np.array([[float(a["tip"] == t) for t in tips] + [a["k"] - k_c] for a in anchors])
-    y = np.array([a["s"] - 1.0 for a in anchors])
+    X, y = _trend_rows(anchors, k_c)
     if np.linalg.matrix_rank(X) < X.shape[1]:
         return None, "the anchors' positions do not separate a trend from the tip offsets"
     return float(np.linalg.lstsq(X, y, rcond=None)[0][-1]), ""
@@ -95,9 +101,7 @@ def anchor_evidence(anchors: list[dict], k_c: float, n_trials: int) -> dict:
     b, why = anchor_trend(anchors, k_c)
     if b is None:
         return {**out, "identified": False, "why": why}
-    tips = sorted({a["tip"] for a in anchors})
-    X = np.array([[float(a["tip"] == t) for t in tips] + [a["k"] - k_c] for a in anchors])
-    y = np.array([a["s"] - 1.0 for a in anchors])
+    X, y = _trend_rows(anchors, k_c)
     rms = [float(np.sqrt(np.mean((y - Z @ np.linalg.lstsq(Z, y, rcond=None)[0]) ** 2))) for Z in (X[:, :-1], X)]
     return {**out, "identified": True, "slope_per_trial": float(b),
             "campaign_change": abs(float(b)) * max(int(n_trials) - 1, 1), "rms_offsets": rms[0], "rms_trend": rms[1]}
