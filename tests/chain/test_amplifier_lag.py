@@ -90,6 +90,8 @@ def test_adopted_on_the_simulated_amplifier_and_table3_lowered(clean, fits):
     assert 0 < lag["tau_s"] <= LAG_MAX_S and lag["column_r2"] <= LAG_MAX_R2
     assert auto.fit_report_["amplifier_lag"]["applied"] and "applied" in lag["note"]
     assert not off.amplifier_lag_["applied"] and "off" in off.amplifier_lag_["note"]
+    # a lag is not a slew limit: the amplifier member's slew part finds none on this device (first look)
+    assert not auto.amplifier_["slew"]["applied"] and auto.amplifier_["slew"]["rate_v_per_s"] == 0.0
     assert _table3(auto, tr, me, rig) < _table3(off, tr, me, rig)
     # the estimate applies the correction: the model without it gives another estimate of the same samples
     t = "val_disp"

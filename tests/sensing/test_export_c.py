@@ -82,11 +82,18 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
-        # every member the C code carries: amplifier lag, quantiser, absorption, leakage, stress, rest offset, sliding
+        # every member the C code carries: amplifier slew and lag, quantiser, absorption, leakage, stress, rest offset, sliding
         # offset (dx and f), limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5
         # the voltage link's lag member: the actuator voltage 0.4 ms behind the command
         est.amplifier_lag_ = {"applied": True, "tau_s": 4.0e-4}
+        # the amplifier member's slew limit (chain.amplifier.with_slew) at 70 % of the fastest calibration command
+        from selfsense.io.rig import rig_value
+
+        cf = sigs["cal_free"]
+        rate = rig_value(rig, "amplifier_gain") * float(np.max(np.abs(np.diff(cf["u_cmd"].to_numpy())
+                                                                        / np.diff(cf["t"].to_numpy()))))
+        est.amplifier_ = {**est.amplifier_, "applied": False, "slew": {"applied": True, "rate_v_per_s": 0.7 * rate}}
         pr = _rig_params(rig)
         est.absorption_ = {"applied": True, "c_f": 0.02 * pr["n_A"] * pr["C_p"], "tau_s": 1.5}
         # the quantiser member: a threshold midway between two distinct deviations of V_s from the short's mean (no

@@ -26,8 +26,18 @@ What the run-time signals show (no reference is read):
   ``H(q)``. Between two anchors :func:`rebuild_voltage` therefore interpolates ``V - H(q)`` linearly in ``q`` and
   adds ``H(q)`` back (with ``H = 0``: ``V`` linear in ``q``, a constant incremental capacitance).
 
-A slew limit of the amplifier that binds without the current limit is not rebuilt: off the current plateau the
-link keeps eq. (56).
+The **slew member** (:func:`identify_slew`): an amplifier at its slew limit ``S`` [V/s] delivers
+``V_c = rate_limit(gain u_cmd, S)`` (``V_c,k = V_c,k-1 + clip(gain u_k - V_c,k-1, -S dt, S dt)``), so that on fast command
+edges the actuator lags the command by tens of volts and catches up on the hold after the edge, while the logged
+``V = gain u_cmd - V_s`` shows the command. The rate is a property of the amplifier, the same in every trial, and the
+correction is causal (a stream and the C export carry one state, the delivered command). ``S`` is identified from
+the V-Q rows alone (no reference is read): the calibration rows of the joint H(q) fit and the rows of every other
+free-tip trial (``V - slope Q`` against ``Q``), on which the reference Preisach model (the charge link's) fits best
+at the true rate, because only then is the V-Q relation a rate-independent loop again. Candidates are quantiles of
+the command's own rate (:data:`SLEW_QUANTILES`); where the two fastest lower the in-sample error by
+:data:`SLEW_PROBE_GAIN` the best candidate is refined by a bounded search, and the member is supported where the
+rows' blocked-CV error with it is at most :data:`SLEW_CV_RATIO` of the error without it. A current limit on top of
+the slew is rebuilt as above from the slewed command.
 
 The **lag member** (:func:`lag_column`): an HV amplifier of finite bandwidth (a first-order lag of time constant
 ``tau = 1 / (2 pi f_bw)``, 0.03-0.3 ms for 0.5-5 kHz), or a skew between the DAQ's output and input clocks, delivers
@@ -49,12 +59,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
+from numba import njit
 
 from selfsense.signals.runs import true_runs
 
-__all__ = ["AmplifierLimit", "shunt_current", "identify_current_limit", "limited_mask", "rebuild_voltage",
+__all__ = ["AmplifierLimit", "SlewLimit", "shunt_current", "rate_limit", "slew_candidates", "with_slew", "identify_slew", "identify_current_limit", "limited_mask", "rebuild_voltage",
            "lag_column", "lag_r2", "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN", "LAG_MAX_S", "LAG_MIN_GAIN",
-           "LAG_MAX_R2"]
+           "LAG_MAX_R2", "SLEW_QUANTILES", "SLEW_TOP_FRACTION", "SLEW_PROBE_GAIN", "SLEW_CV_RATIO"]
 
 #: the current plateau must hold at least this share of the relay-open samples of all trials (effect-free virtual
 #: devices: <= 2 % of samples within the band of their largest current, at the peaks of C dV/dt)
@@ -76,6 +87,18 @@ LAG_MIN_GAIN = 0.02
 #: (measured 0.990-0.997 on eight devices of the thesis protocol, 0.94-0.96 on tip-protocol devices with a mixed and
 #: a stepped calibration trial), and the CV on sine folds cannot tell which extrapolates to holds
 LAG_MAX_R2 = 0.98
+#: the slew member's candidate rates: these quantiles of the command's rate |gain du_cmd/dt| over the relay-open
+#: samples of the rows' trials (the slew binds on the samples faster than it; the fastest two are the first look)
+SLEW_QUANTILES = (0.999, 0.99, 0.97, 0.93, 0.85, 0.75, 0.6, 0.45, 0.3)
+#: ... and this fraction of the fastest command rate, the first candidate (no candidate above it)
+SLEW_TOP_FRACTION = 0.9
+#: the first look: one of the two fastest candidates lowers the reference model's in-sample error of the rows by at
+#: least this fraction, else the search stops (effect-free devices: every candidate raises it, measured 17x at the
+#: 0.9 quantile on the effect-free twin of tip case 38, seed 20261224)
+SLEW_PROBE_GAIN = 0.01
+#: supported where the rows' blocked-CV error with the slew is at most this fraction of the error without it
+#: (tip case 38 of seed 20261224, slew 128 V/s: 14.7 -> 1.4 V at the identified 124-128 V/s)
+SLEW_CV_RATIO = 0.8
 #: band of the plateau: this many in-amp noise standard deviations, at least BAND_REL of the limit
 BAND_SIGMA, BAND_REL = 5.0, 0.005
 
@@ -94,6 +117,129 @@ class AmplifierLimit:
 
     def to_dict(self) -> dict:
         return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class SlewLimit:
+    """The slew limit seen in the V-Q rows: ``rate_v_per_s`` (0: none), the rows' reference errors with and without
+    it [V], whether the data support it (:func:`identify_slew`)."""
+    rate_v_per_s: float = 0.0
+    insample_v_without: float = float("nan")
+    insample_v_with: float = float("nan")
+    cv_rms_v_without: float = float("nan")
+    cv_rms_v_with: float = float("nan")
+    quantile: float = float("nan")
+    supported: bool = False
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(self).items()}
+
+
+@njit(cache=True)
+def _rate_limit(x, t, rate):
+    y = np.empty_like(x)
+    if x.shape[0] == 0:
+        return y
+    prev = x[0]
+    y[0] = prev
+    for i in range(1, x.shape[0]):
+        lim = rate * (t[i] - t[i - 1])
+        d = x[i] - prev
+        if d > lim:
+            prev = prev + lim
+        elif d < -lim:
+            prev = prev - lim
+        else:
+            prev = x[i]
+        y[i] = prev
+    return y
+
+
+def rate_limit(x, rate: float, t) -> np.ndarray:
+    """``x`` followed at most at ``rate`` [unit/s] at the time stamps ``t`` [s] (an amplifier's slew limit): the
+    forward recursion ``y_k = y_k-1 + clip(x_k - y_k-1, -rate (t_k - t_k-1), rate (t_k - t_k-1))`` from ``y_0 = x_0``."""
+    x = np.ascontiguousarray(x, dtype=float)
+    t = np.ascontiguousarray(t, dtype=float)
+    if x.shape != t.shape:
+        raise ValueError(f"rate_limit: x has {x.shape} samples, t {t.shape}")
+    return _rate_limit(x, t, float(rate))
+
+
+def with_slew(df: pd.DataFrame, amplifier_gain: float, rate: float) -> pd.DataFrame:
+    """The trial as the slew member sees it: ``u_cmd`` replaced by the delivered command
+    ``rate_limit(gain u_cmd, rate) / gain`` and ``V`` by ``V + gain (u_delivered - u_cmd)`` (eq. 56 with the delivered
+    command). ``rate`` <= 0: unchanged."""
+    if not rate > 0:
+        return df
+    g = float(amplifier_gain)
+    u = df["u_cmd"].to_numpy(dtype=float)
+    vc = rate_limit(g * u, rate, df["t"].to_numpy(dtype=float))
+    out = df.copy()
+    out["V"] = df["V"].to_numpy(dtype=float) + (vc - g * u)
+    out["u_cmd"] = vc / g
+    return out
+
+
+def slew_candidates(trials: Mapping[str, pd.DataFrame], amplifier_gain: float) -> np.ndarray:
+    """Candidate slew rates [V/s]: :data:`SLEW_TOP_FRACTION` of the fastest ``|gain du_cmd/dt|`` over the relay-open
+    samples of ``trials`` and the :data:`SLEW_QUANTILES` of it below that (a drive's edges run at one rate for many
+    samples: the top quantiles are that rate), fastest first (empty where no command moves)."""
+    r = []
+    for df in trials.values():
+        rel = df["relay"].to_numpy(dtype=float) >= 0.5
+        w = np.abs(lag_column(df, amplifier_gain))
+        r.append(w[~rel & (w > 0)])
+    r = np.concatenate(r) if r else np.zeros(0)
+    if not r.size:
+        return r
+    top = float(r.max())
+    c = np.unique(np.append(np.quantile(r, SLEW_QUANTILES), SLEW_TOP_FRACTION * top))
+    return c[c <= SLEW_TOP_FRACTION * top][::-1]
+
+
+def identify_slew(trials: Mapping[str, pd.DataFrame], amplifier_gain: float,
+                  insample: Callable[[Mapping[str, pd.DataFrame]], float],
+                  cv: Callable[[Mapping[str, pd.DataFrame]], float]) -> SlewLimit:
+    """The amplifier's slew limit from the V-Q rows of ``trials`` (module docstring, the slew member).
+
+    ``insample(trials)`` / ``cv(trials)``: the reference model's in-sample / blocked-CV error [V] of the rows the
+    trials give. Returns the evidence with the best rate found (0 where the first look finds none; the caller applies
+    it where ``supported``, or where forced)."""
+    from scipy.optimize import minimize_scalar
+
+    cands = slew_candidates(trials, amplifier_gain)
+    if not cands.size:
+        return SlewLimit(note="no command moves: no slew limit")
+    at = lambda s: {t: with_slew(df, amplifier_gain, s) for t, df in trials.items()}  # noqa: E731
+    e0 = insample(trials)
+    errs = {}
+    for s in cands[:2]:
+        errs[float(s)] = insample(at(s))
+    if not min(errs.values()) <= (1.0 - SLEW_PROBE_GAIN) * e0:
+        return SlewLimit(insample_v_without=e0, note=(
+            f"the fastest command rates ({cands[0]:.4g}, {cands[min(1, len(cands) - 1)]:.4g} V/s) as slew limits do not "
+            f"lower the V-Q rows' reference error ({e0:.4g} V) by {SLEW_PROBE_GAIN * 100:g} %: no slew limit"))
+    for s in cands[2:]:
+        errs[float(s)] = insample(at(s))
+    rates = sorted(errs)
+    k = int(np.argmin([errs[s] for s in rates]))
+    lo, hi = rates[max(k - 1, 0)], rates[min(k + 1, len(rates) - 1)]
+    best = rates[k]
+    if hi > lo:
+        res = minimize_scalar(lambda z: insample(at(float(np.exp(z)))), bounds=(np.log(lo), np.log(hi)),
+                              method="bounded", options={"xatol": 1e-3})
+        if float(res.fun) < errs[best]:
+            best, errs[float(np.exp(res.x))] = float(np.exp(res.x)), float(res.fun)
+    rate = float(best)
+    c0, c1 = cv(trials), cv(at(rate))
+    q = float(np.mean(np.concatenate([np.abs(lag_column(df, amplifier_gain)) for df in trials.values()]) > rate))
+    ok = bool(c1 <= SLEW_CV_RATIO * c0)
+    note = (f"slew limit {rate:.4g} V/s (the command is faster on {q * 100:.1f} % of the rows' samples): the V-Q rows' "
+            f"reference error {e0:.4g} -> {errs[best]:.4g} V in sample, blocked CV {c0:.4g} -> {c1:.4g} V"
+            + ("" if ok else f" (needs <= {SLEW_CV_RATIO:g}x): not supported"))
+    return SlewLimit(rate_v_per_s=rate, insample_v_without=e0, insample_v_with=errs[best], cv_rms_v_without=c0,
+                     cv_rms_v_with=c1, quantile=q, supported=ok, note=note)
 
 
 def shunt_current(df: pd.DataFrame, shunt_resistance_ohm: float) -> np.ndarray:

@@ -247,7 +247,8 @@ def adopted_members(fitted) -> dict:
     return {"leakage": bool(getattr(fitted, "leakage_s_", 0.0)), "offset_drift": bool(getattr(fitted, "offset_drift_",
                                                                                               False)),
             "hold_rows": bool(hold_rows.get("applied", False)),
-            "amplifier": bool((getattr(fitted, "amplifier_", None) or {}).get("applied", False)),
+            "amplifier": bool((a := getattr(fitted, "amplifier_", None) or {}).get("applied", False)
+                              or (a.get("slew") or {}).get("applied", False)),
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
             "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),

@@ -49,6 +49,7 @@ from typing import Callable
 
 import numpy as np
 import pandas as pd
+from selfsense.chain.amplifier import rate_limit
 from selfsense.signals.iir import lfilter
 
 from selfsense.signals.kernels import shunt_current
@@ -139,24 +140,6 @@ def resonator(x: np.ndarray, f_hz: float, zeta: float, dt: float) -> np.ndarray:
     return lfilter(b, a, np.asarray(x, float))
 
 
-def rate_limit(x: np.ndarray, rate: float, dt: float) -> np.ndarray:
-    """x followed at most at ``rate`` [unit/s] (an amplifier slew / current limit into a capacitive load): the
-    forward recursion ``y_k = y_{k-1} + clip(x_k - y_{k-1}, -rate dt, rate dt)``."""
-    x = np.asarray(x, float)
-    y = np.empty_like(x)
-    if len(x) == 0:
-        return y
-    y[0] = prev = x[0]
-    t = np.arange(len(x)) * dt
-    dtl = rate * np.diff(t)
-    for i in range(1, len(x)):  # a few thousand samples per trial: plain Python is fast enough here
-        d = x[i] - prev
-        lim = dtl[i - 1]
-        prev = prev + (lim if d > lim else (-lim if d < -lim else d))
-        y[i] = prev
-    return y
-
-
 def _plays(x: np.ndarray, radii, z0=None) -> np.ndarray:
     from selfsense.hysteresis.operators import play_operator
 
@@ -222,7 +205,7 @@ def _c_mode(s, ctx, g):
 
 def _c_amplifier(s, ctx, g):
     rate = ctx["slew"] * g
-    vc = rate_limit(s.Vc, rate, s.dt)
+    vc = rate_limit(s.Vc, rate, np.arange(len(s.Vc)) * s.dt)
     return (vc - s.Vc)[:, None]
 
 

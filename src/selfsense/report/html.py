@@ -199,6 +199,11 @@ def _model_section(results_dir: Path) -> list[str]:
         kind += (f"; actuator voltage where the HV amplifier sits at its current limit (shunt current of every trial, "
                  f"docs/method.md 1a): {'rebuilt' if amp.get('applied') else 'read from the command, eq. (56)'}, "
                  f"{html.escape(str(amp['note']))}")
+    sl = amp.get("slew") or {}
+    if sl.get("note"):
+        kind += (f"; actuator voltage behind a fast command at the HV amplifier's slew limit (V-Q rows of the "
+                 f"calibration and of every free-tip trial, docs/method.md 1a): "
+                 f"{'rebuilt' if sl.get('applied') else 'read from the command'}, {html.escape(str(sl['note']))}")
     lag = d.get("amplifier_lag") or {}
     if lag.get("note"):
         kind += (f"; actuator voltage behind the command by the HV amplifier's lag (voltage link, a column gain du/dt "

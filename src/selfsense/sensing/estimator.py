@@ -1554,14 +1554,47 @@ class SelfSensingEstimator:
         except (KeyError, AttributeError, TypeError):
             self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
             return trials
-        every = {t: df for t, df in trials.items() if t in meta.index}
+        self._slew_link(trials, meta, mode, gain)
+        slewed = {t: self._with_slew(df) for t, df in trials.items()}
+        every = {t: df for t, df in slewed.items() if t in meta.index}
         lim = identify_current_limit(every, R, gain)
         self.amplifier_.update(lim.to_dict())
         if not (lim.supported or (mode == "on" and lim.i_lim > 0)):
-            return trials
-        self.voltage_hysteresis_ = self._anchor_h(trials, meta, lim)
+            return slewed
+        self.voltage_hysteresis_ = self._anchor_h(slewed, meta, lim)
         self.amplifier_.update({"applied": True, "source": "forced" if mode == "on" else "current plateau"})
         return {t: self._with_voltage(df) for t, df in trials.items()}
+
+    def _slew_link(self, trials, meta, mode, gain) -> None:
+        """The slew part of the amplifier member (:func:`selfsense.chain.amplifier.identify_slew`): the slew rate for
+        which the reference Preisach model (:func:`_reference_h`) fits the V-Q rows best, the rows being those of the
+        joint calibration fit (the eq. 55 gauge, no leakage, no drift columns) and of every other free-tip trial
+        (``V - slope Q`` against ``Q``: V, Q and the relay only, no reference); supported where the rows' blocked-CV
+        error (3 folds) falls to :data:`~selfsense.chain.amplifier.SLEW_CV_RATIO` of the error without it, forced
+        ("on") wherever a rate was found. Sets ``amplifier_["slew"]``."""
+        from selfsense.chain.amplifier import identify_slew
+
+        info: dict = {"applied": False}
+        self.amplifier_["slew"] = info
+        rows_meta = meta[((meta["role"] == "calibration") | ((meta["tip"] == "free") & (meta["reference"] != "force")))
+                         & meta.index.isin(list(trials))]
+        if not (rows_meta["tip"] == "free").any():
+            info["note"] = "no free-tip trial: not assessed"
+            return
+        p = _rig_params(self.rig)
+        slope = 1.0 / (p["n_A"] * p["C_p"])
+
+        def rows(tr):
+            qs, ys, ex, _, _, dt = self._h_segments(tr, rows_meta, slope, 0.0, drift_cols=False, stress_col=False)
+            return qs, ys, ex, dt
+
+        ev = identify_slew({t: trials[t] for t in rows_meta.index}, gain, lambda tr: _reference_insample(*rows(tr)),
+                           lambda tr: _reference_cv(*rows(tr)))
+        applied = bool(ev.supported or (mode == "on" and ev.rate_v_per_s > 0))
+        info.update(ev.to_dict())
+        info.update({"applied": applied, "source": ("forced" if applied and not ev.supported else
+                                                    "V-Q rows" if applied else ""),
+                     "note": ev.note + (": applied" if applied else "")})
 
     def _anchor_h(self, trials, meta, lim):
         """The reference H(q) of the voltage rebuild: a Preisach model (12 x 12 grid, 6 plays, creep) fitted on the
@@ -1711,8 +1744,9 @@ class SelfSensingEstimator:
         return self._with_absorption(self._with_quantiser(self._with_voltage(df)))
 
     def _with_voltage(self, df: pd.DataFrame) -> pd.DataFrame:
-        """The trial with its current-limited actuator voltage rebuilt (unchanged when the member is not applied)."""
-        df = self._with_lag(df)
+        """The trial with its slew-limited and current-limited actuator voltage rebuilt (unchanged when the member is
+        not applied)."""
+        df = self._with_lag(self._with_slew(df))
         if not self.amplifier_.get("applied") or "V_s" not in df or "u_cmd" not in df:
             return df
         from selfsense.chain.amplifier import AmplifierLimit, rebuild_voltage
@@ -1724,6 +1758,19 @@ class SelfSensingEstimator:
         V = rebuild_voltage(df, rig_value(self.rig, "shunt_resistance_ohm"), rig_value(self.rig, "amplifier_gain"),
                             lim, h_of)
         return _with_column(df, "V", V)
+
+    def _with_slew(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The trial with the delivered command and voltage of the amplifier member's slew limit
+        (:func:`selfsense.chain.amplifier.with_slew`; unchanged when not applied)."""
+        sl = (self.amplifier_ or {}).get("slew") or {}
+        if not sl.get("applied"):
+            return df
+        if "u_cmd" not in df:
+            raise ValueError("the model carries the amplifier member's slew limit (the actuator voltage behind a fast "
+                             "command): the trial needs its u_cmd column")
+        from selfsense.chain.amplifier import with_slew
+
+        return with_slew(df, rig_value(self.rig, "amplifier_gain"), float(sl["rate_v_per_s"]))
 
     def _start_member(self, name: str, default: str) -> dict:
         """The record of a member decided after the coefficients (``amplifier_lag``, ``temperature``): its mode (the

@@ -165,6 +165,11 @@ int ss_step(ss_state *s, double u_cmd, double v_shunt, int relay, double *dx, do
     if (relay != 0 && relay != 1) return SS_ERR_RELAY;
     shorted = relay == 1;
     Vs = v_shunt / INAMP;
+    if (SLEW > 0.0 && s->t_n > 0.0) {  /* the amplifier's slew limit: u_last is the delivered command */
+        d = GAIN * u_cmd - GAIN * s->u_last;
+        if (d > SLEW * SS_DT) u_cmd = (GAIN * s->u_last + SLEW * SS_DT) / GAIN;
+        else if (d < -SLEW * SS_DT) u_cmd = (GAIN * s->u_last - SLEW * SS_DT) / GAIN;
+    }
     V = GAIN * u_cmd - Vs;
     if (LAG_K != 0.0 && s->t_n > 0.0) V = V - LAG_K * (u_cmd - s->u_last) / SS_DT;  /* lag member: V - tau gain du/dt */
     if (s->off_mode == 0) {
@@ -516,6 +521,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     ab = getattr(est, "absorption_", None) or {}
     qz = getattr(est, "quantiser_", None) or {}
     lag = getattr(est, "amplifier_lag_", None) or {}
+    sl = (getattr(est, "amplifier_", None) or {}).get("slew") or {}
     h = _h_spec(est.hysteresis_, float(dt))
     # the load link's creep member (selfsense.chain.creep): its lags at the export's sample period
     cr = getattr(est, "tip_creep_", None) or {}
@@ -531,6 +537,8 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         "GAIN": rig_value(rig, "amplifier_gain"), "G_LEAK": float(est.leakage_s_ or 0.0),
         # the voltage link's lag member (chain.amplifier.lag_column): tau * gain
         "LAG_K": (float(lag["tau_s"]) * rig_value(rig, "amplifier_gain")) if lag.get("applied") else 0.0,
+        # the amplifier member's slew limit (chain.amplifier.with_slew) [V/s]
+        "SLEW": float(sl["rate_v_per_s"]) if sl.get("applied") else 0.0,
         "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
         "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,

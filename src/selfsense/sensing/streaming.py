@@ -72,7 +72,7 @@ __all__ = ["SelfSensingStream", "StreamError", "HStream", "CausalOffsetDrift", "
 _NS_FRONT = 17
 _OFF_WAIT, _OFF_COLLECT, _OFF_FIXED = 0.0, 1.0, 2.0
 # ---- front parameters
-_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH, _F_TS, _F_LAG = range(10)
+_F_R, _F_INAMP, _F_GAIN, _F_G, _F_CDA, _F_ADA, _F_CQ, _F_QH, _F_TS, _F_LAG, _F_SLEW = range(11)
 # ---- back state / parameters
 _DX_DC, _F_DC = range(2)
 _NS_BACK = 2
@@ -134,28 +134,41 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
 
 
 @njit(cache=True)
-def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
+def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out, u_out):
     """Link 1 on a block: SI conversion, relay offset, charge (eq. 57), the quantiser, absorption and leakage
     members. Returns (status, index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak, c_da,
     a_da, i_q, half_step] (``a_da = exp(-dt / tau)`` of the absorption branch; ``i_q`` the quantiser member's current
     on the samples off the short's ADC code, ``half_step`` half that step [V]); ``S`` the front state (updated in place); ``t`` ignored
     unless ``use_t``. Writes the charge the model uses (``q_out``, after the members), the measured charge
-    (``qm_out``), V and the sample's time (``t_out``: the time stamp, or the sample period accumulated from 0 without
-    time stamps)."""
+    (``qm_out``), V, the sample's time (``t_out``: the time stamp, or the sample period accumulated from 0 without
+    time stamps) and the command the amplifier delivered (``u_out``: the command, or its slew-limited value where the
+    model carries the slew limit; it may be ``u`` itself)."""
     for k in range(u.shape[0]):
         rk = relay[k]
         if rk != 0.0 and rk != 1.0:
             return _ERR_RELAY_VALUE, k
         shorted = rk == 1.0
         Vs = v[k] / P[_F_INAMP]
-        V = P[_F_GAIN] * u[k] - Vs
+        uk = u[k]
+        sl = P[_F_SLEW]
+        if sl > 0.0 and S[_NSEEN] > 0.0:
+            # the amplifier member's slew limit: the delivered command follows the command at most at the slew rate
+            # (chain.amplifier.with_slew; _U_LAST holds the delivered command)
+            h = (t[k] - S[_T_LAST]) if use_t else dt
+            lim = sl * h
+            dv = P[_F_GAIN] * uk - P[_F_GAIN] * S[_U_LAST]
+            if dv > lim:
+                uk = (P[_F_GAIN] * S[_U_LAST] + lim) / P[_F_GAIN]
+            elif dv < -lim:
+                uk = (P[_F_GAIN] * S[_U_LAST] - lim) / P[_F_GAIN]
+        V = P[_F_GAIN] * uk - Vs
         kl = P[_F_LAG]
         if kl != 0.0 and S[_NSEEN] > 0.0:
             # the voltage link's lag member: V - tau gain du/dt, the backward difference over the sample interval
             # (chain.amplifier.lag_column; 0 at the first sample)
             h = (t[k] - S[_T_LAST]) if use_t else dt
             if h > 0.0:
-                V = V - kl * (u[k] - S[_U_LAST]) / h
+                V = V - kl * (uk - S[_U_LAST]) / h
         # in-amp offset from the first shorted segment (signals.relay_offset)
         mode = S[_OFF_MODE]
         if mode == _OFF_WAIT:
@@ -215,7 +228,8 @@ def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out):
         t_out[k] = t_last
         S[_VS_LAST] = Vs
         S[_V_LAST] = V
-        S[_U_LAST] = u[k]
+        S[_U_LAST] = uk
+        u_out[k] = uk
         S[_NSEEN] += 1.0
         q_out[k] = q
         V_out[k] = V
@@ -298,7 +312,7 @@ def _step_front(P, S, S_next, B, u, v, relay, tk, dt, use_t):
     for i in range(S.shape[0]):
         S_next[i] = S[i]
     st, _k = front_kernel(P, S_next, B[_BUF_T], B[_BUF_U], B[_BUF_V], B[_BUF_R], dt, use_t, B[_BUF_Q], B[_BUF_VV], B[_BUF_QM],
-                          B[_BUF_TS])
+                          B[_BUF_TS], B[_BUF_U])
     return st
 
 
@@ -863,7 +877,10 @@ class SelfSensingStream:
         # the voltage link's lag member (chain.amplifier.lag_column): tau * gain [V s per command volt]
         lag = getattr(estimator, "amplifier_lag_", None) or {}
         k_lag = float(lag["tau_s"]) * gain if lag.get("applied") else 0.0
-        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale, k_lag])
+        # the amplifier member's slew limit (chain.amplifier.with_slew) [V/s], 0 where not carried
+        sl = (getattr(estimator, "amplifier_", None) or {}).get("slew") or {}
+        slew = float(sl["rate_v_per_s"]) if sl.get("applied") else 0.0
+        self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale, k_lag, slew])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
             # exactly the expression of SelfSensingEstimator.estimate
@@ -1030,7 +1047,8 @@ class SelfSensingStream:
         V = np.empty(n)
         ts = np.empty(n)
         SF = self._SF.copy()  # commit the state only if the whole block is valid
-        st, k = front_kernel(self._PF, SF, tt, u, v, r, dt, use_t, q, V, qm, ts)
+        ud = np.empty(n)
+        st, k = front_kernel(self._PF, SF, tt, u, v, r, dt, use_t, q, V, qm, ts, ud)
         if st:
             self._raise(int(st), f"sample {self.n_samples + int(k)} (block index {int(k)})")
         if self.drift is not None:
@@ -1040,7 +1058,7 @@ class SelfSensingStream:
         dx = np.empty(n)
         f = np.empty(n)
         aux = np.empty((n, 4)) if full else np.empty((0, 4))
-        back_kernel(self._PB, self._SB, u, r, q, V, VH, dx, f, aux)
+        back_kernel(self._PB, self._SB, ud, r, q, V, VH, dx, f, aux)
         self._SF = SF
         if not full:
             return dx, f
