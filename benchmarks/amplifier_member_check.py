@@ -43,7 +43,8 @@ def check(seed: int, i: int) -> dict:
         row[f"table3_{mode}"] = float(_summary(tip_table(tr, me, rig, None, estimator=est))["mean"])
         row[f"cal_{mode}"] = calibration_error(est, tr, me)
         if mode == "auto":
-            row["adopted"] = bool((est.amplifier_ or {}).get("applied"))
+            row["adopted"] = bool((est.amplifier_ or {}).get("applied"))   # the current-limit rebuild
+            row["slew_adopted"] = bool(((est.amplifier_ or {}).get("slew") or {}).get("applied"))
             row["form_auto"] = (est.selected_form() or (("-", {}),))[-1][0]
             # the member's rebuilt actuator voltage against the simulator's: RMS [V], the largest over the trials
             row["rebuild_rms_v"] = max(float(np.sqrt(np.mean((est._with_voltage(df)["V"].to_numpy(float)

@@ -79,6 +79,7 @@ def _case(i: int, seed: int) -> dict:
 
     class TrueVH(SelfSensingEstimator):
         def _with_voltage(self, df):
+            df = self._with_lag(self._with_slew(df))
             if not self.amplifier_.get("applied"):
                 return df
             from selfsense.chain.amplifier import AmplifierLimit

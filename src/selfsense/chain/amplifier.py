@@ -31,7 +31,7 @@ The **slew member** (:func:`identify_slew`): an amplifier at its slew limit ``S`
 edges the actuator lags the command by tens of volts and catches up on the hold after the edge, while the logged
 ``V = gain u_cmd - V_s`` shows the command. The rate is a property of the amplifier, the same in every trial, and the
 correction is causal (a stream and the C export carry one state, the delivered command). ``S`` is identified from
-the V-Q rows alone (no reference is read): the calibration rows of the joint H(q) fit and the rows of every other
+the V-Q rows alone (no validation reference is read): the calibration rows of the joint H(q) fit and the rows of every other
 free-tip trial (``V - slope Q`` against ``Q``), on which the reference Preisach model (the charge link's) fits best
 at the true rate, because only then is the V-Q relation a rate-independent loop again. Candidates are quantiles of
 the command's own rate (:data:`SLEW_QUANTILES`); where the two fastest lower the in-sample error by
@@ -63,7 +63,8 @@ from numba import njit
 
 from selfsense.signals.runs import true_runs
 
-__all__ = ["AmplifierLimit", "SlewLimit", "shunt_current", "rate_limit", "slew_candidates", "with_slew", "identify_slew", "identify_current_limit", "limited_mask", "rebuild_voltage",
+__all__ = ["AmplifierLimit", "SlewLimit", "shunt_current", "rate_limit", "slew_candidates", "with_slew",
+           "identify_slew", "identify_current_limit", "limited_mask", "rebuild_voltage",
            "lag_column", "lag_r2", "PLATEAU_MIN_FRACTION", "RUN_MIN_S", "LAG_MIN", "LAG_MAX_S", "LAG_MIN_GAIN",
            "LAG_MAX_R2", "SLEW_QUANTILES", "SLEW_TOP_FRACTION", "SLEW_PROBE_GAIN", "SLEW_CV_RATIO"]
 
@@ -97,7 +98,7 @@ SLEW_TOP_FRACTION = 0.9
 #: 0.9 quantile on the effect-free twin of tip case 38, seed 20261224)
 SLEW_PROBE_GAIN = 0.01
 #: supported where the rows' blocked-CV error with the slew is at most this fraction of the error without it
-#: (tip case 38 of seed 20261224, slew 128 V/s: 14.7 -> 1.4 V at the identified 124-128 V/s)
+#: (tip case 38 of seed 20261224, slew 128 V/s: 14.7 -> 1.5 V at the identified 126.7 V/s)
 SLEW_CV_RATIO = 0.8
 #: band of the plateau: this many in-amp noise standard deviations, at least BAND_REL of the limit
 BAND_SIGMA, BAND_REL = 5.0, 0.005
@@ -169,7 +170,7 @@ def rate_limit(x, rate: float, t) -> np.ndarray:
 def with_slew(df: pd.DataFrame, amplifier_gain: float, rate: float) -> pd.DataFrame:
     """The trial as the slew member sees it: ``u_cmd`` replaced by the delivered command
     ``rate_limit(gain u_cmd, rate) / gain`` and ``V`` by ``V + gain (u_delivered - u_cmd)`` (eq. 56 with the delivered
-    command). ``rate`` <= 0: unchanged."""
+    command; ``V_c`` too where the trial has it). ``rate`` <= 0: unchanged."""
     if not rate > 0:
         return df
     g = float(amplifier_gain)
@@ -177,7 +178,9 @@ def with_slew(df: pd.DataFrame, amplifier_gain: float, rate: float) -> pd.DataFr
     vc = rate_limit(g * u, rate, df["t"].to_numpy(dtype=float))
     out = df.copy()
     out["V"] = df["V"].to_numpy(dtype=float) + (vc - g * u)
-    out["u_cmd"] = vc / g
+    out["u_cmd"] = np.where(vc == g * u, u, vc / g)   # the command itself wherever the limit does not bind
+    if "V_c" in out:
+        out["V_c"] = vc
     return out
 
 
@@ -233,10 +236,11 @@ def identify_slew(trials: Mapping[str, pd.DataFrame], amplifier_gain: float,
             best, errs[float(np.exp(res.x))] = float(np.exp(res.x)), float(res.fun)
     rate = float(best)
     c0, c1 = cv(trials), cv(at(rate))
-    q = float(np.mean(np.concatenate([np.abs(lag_column(df, amplifier_gain)) for df in trials.values()]) > rate))
+    q = float(np.mean(np.concatenate([np.abs(lag_column(df, amplifier_gain))[df["relay"].to_numpy(dtype=float) < 0.5]
+                                      for df in trials.values()]) > rate))
     ok = bool(c1 <= SLEW_CV_RATIO * c0)
-    note = (f"slew limit {rate:.4g} V/s (the command is faster on {q * 100:.1f} % of the rows' samples): the V-Q rows' "
-            f"reference error {e0:.4g} -> {errs[best]:.4g} V in sample, blocked CV {c0:.4g} -> {c1:.4g} V"
+    note = (f"slew limit {rate:.4g} V/s (the command is faster on {q * 100:.1f} % of the relay-open samples): the V-Q "
+            f"rows' reference error {e0:.4g} -> {errs[best]:.4g} V in sample, blocked CV {c0:.4g} -> {c1:.4g} V"
             + ("" if ok else f" (needs <= {SLEW_CV_RATIO:g}x): not supported"))
     return SlewLimit(rate_v_per_s=rate, insample_v_without=e0, insample_v_with=errs[best], cv_rms_v_without=c0,
                      cv_rms_v_with=c1, quantile=q, supported=ok, note=note)

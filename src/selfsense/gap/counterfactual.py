@@ -16,7 +16,7 @@ A correction acts where the stage says the effect acts:
 * load-stage members: ``f^ <- f^ + c col`` (and the same taken out of the calibration references).
 
 Members of the stage chain that the estimator carries (:data:`CHAIN_MEMBERS`: the charge link's leakage and offset drift
-and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier current limit,
+and dielectric absorption, :mod:`selfsense.chain.charge`; the voltage link's amplifier slew and current limits,
 :mod:`selfsense.chain.amplifier`; the load link's stress and charge-free creep members, :mod:`selfsense.chain.load`,
 :mod:`selfsense.chain.creep`) are not
 corrected with the stage's coefficients: the estimator is recalibrated with the member forced on, so that "how far it
@@ -633,7 +633,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
     on = [m for m, a in carried.items() if a]
     for m, a in carried.items():
         row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
-                                        "current plateau of every trial" if m == "amplifier" else
+                                        "V-Q rows and current plateau of every trial" if m == "amplifier" else
                                         "laser of the free-tip calibration trials" if m == "absorption" else
                                         "undithered shunt channel, calibration rows" if m == "quantiser" else
                                         "force-reference calibration rows" if m == "stress" else

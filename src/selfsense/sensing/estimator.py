@@ -689,6 +689,10 @@ class SelfSensingEstimator:
     #: search found g = 1.6243377313417883 nS against the thesis gauge's 1.6243377313454275 nS, a relative 2e-12, and
     #: the blocked-CV errors agree to 2e-14). ``compare_modes`` sets it for the selected model's other calibration mode
     leakage_search_any_gauge: bool = False
+    #: the amplifier member's slew record of an earlier fit of the same trials (its ``amplifier_["slew"]``): taken over
+    #: instead of searched again where the member is "auto" or the record applies a rate (a recalibration that changes
+    #: another member: the lag member's, :meth:`_lag_link`); None: searched
+    slew_reuse: Mapping | None = None
 
     # fitted
     hysteresis_: Any = field(default=None, init=False, repr=False)
@@ -1531,7 +1535,9 @@ class SelfSensingEstimator:
     # ------------------------------------------------------------------ voltage link
     def _voltage_link(self, trials, meta):
         """The amplifier member of the voltage link (:mod:`selfsense.chain.amplifier`): the current limit from the
-        shunt current of every trial (a reference-free plateau test); where it is supported (``members['amplifier']``
+        shunt current of every trial (a reference-free plateau test) and, where that is not supported, the slew limit
+        from the V-Q rows (:meth:`_slew_link`; every trial then reads the delivered command; forced on, the current
+        limit is rebuilt where no slew rate is found). Where the current limit is supported (``members['amplifier']``
         "auto") or forced ("on"), the actuator voltage of the current-limited samples is rebuilt with ``V - H(q)``
         linear in the charge between the anchors (thesis eqs. 24-27: V_p is affine in q at a given load) and the
         reference H(q) of :meth:`_anchor_h`. Returns the trials to fit on."""
@@ -1554,12 +1560,17 @@ class SelfSensingEstimator:
         except (KeyError, AttributeError, TypeError):
             self.amplifier_["note"] = "the rig gives no shunt resistance or amplifier gain: V as given"
             return trials
-        self._slew_link(trials, meta, mode, gain)
-        slewed = {t: self._with_slew(df) for t, df in trials.items()}
-        every = {t: df for t, df in slewed.items() if t in meta.index}
+        every = {t: df for t, df in trials.items() if t in meta.index}
         lim = identify_current_limit(every, R, gain)
         self.amplifier_.update(lim.to_dict())
-        if not (lim.supported or (mode == "on" and lim.i_lim > 0)):
+        if lim.supported:   # a current limit into the actuators' capacitance is a rate limit too: the rebuild's
+            self.amplifier_["slew"] = {"applied": False, "note": "the current limit is supported: the rebuild on its "
+                                                                 "plateau carries the amplifier, no slew search"}
+        else:
+            self._slew_link(trials, meta, mode, gain)
+        slewed = {t: self._with_slew(df) for t, df in trials.items()}
+        slew_on = bool(self.amplifier_["slew"].get("applied"))
+        if not (lim.supported or (mode == "on" and lim.i_lim > 0 and not slew_on)):
             return slewed
         self.voltage_hysteresis_ = self._anchor_h(slewed, meta, lim)
         self.amplifier_.update({"applied": True, "source": "forced" if mode == "on" else "current plateau"})
@@ -1568,14 +1579,20 @@ class SelfSensingEstimator:
     def _slew_link(self, trials, meta, mode, gain) -> None:
         """The slew part of the amplifier member (:func:`selfsense.chain.amplifier.identify_slew`): the slew rate for
         which the reference Preisach model (:func:`_reference_h`) fits the V-Q rows best, the rows being those of the
-        joint calibration fit (the eq. 55 gauge, no leakage, no drift columns) and of every other free-tip trial
-        (``V - slope Q`` against ``Q``: V, Q and the relay only, no reference); supported where the rows' blocked-CV
-        error (3 folds) falls to :data:`~selfsense.chain.amplifier.SLEW_CV_RATIO` of the error without it, forced
-        ("on") wherever a rate was found. Sets ``amplifier_["slew"]``."""
+        joint calibration fit (the eq. 55 gauge, no leakage, no drift columns; a calibration trial's force reference
+        is a column there) and of every other free-tip trial (``V - slope Q`` against ``Q``: V, Q and the relay only,
+        no validation reference); supported where the rows' blocked-CV error (3 folds) falls to
+        :data:`~selfsense.chain.amplifier.SLEW_CV_RATIO` of the error without it, forced ("on") wherever a rate was
+        found; :attr:`slew_reuse` taken over instead where given. Sets ``amplifier_["slew"]``."""
         from selfsense.chain.amplifier import identify_slew
 
         info: dict = {"applied": False}
         self.amplifier_["slew"] = info
+        reuse = dict(self.slew_reuse or {})
+        if reuse and (mode == "auto" or reuse.get("applied")):
+            info.update(reuse)
+            info["reused"] = True
+            return
         rows_meta = meta[((meta["role"] == "calibration") | ((meta["tip"] == "free") & (meta["reference"] != "force")))
                          & meta.index.isin(list(trials))]
         if not (rows_meta["tip"] == "free").any():
@@ -1879,13 +1896,16 @@ class SelfSensingEstimator:
                    f"needs 0 < tau <= {LAG_MAX_S * 1e3:g} ms and a gain of at least {LAG_MIN_GAIN * 100:g} %")
             info["note"] = what + f": not applied ({why})"
             return False
-        corrected = {t: _with_column(df, "V", df["V"].to_numpy(dtype=float) - tau * lag_column(df, gain))
-                     for t, df in trials.items()}
+        # the lag of the delivered command (the amplifier member's slew limit, if carried, comes first, as in
+        # _with_voltage); the recalibration takes this fit's slew limit over instead of searching it again
+        slew = dict((self.amplifier_ or {}).get("slew") or {})
+        corrected = {t: _with_column(df, "V", df["V"].to_numpy(dtype=float)
+                                     - tau * lag_column(self._with_slew(df), gain)) for t, df in trials.items()}
         cands, cv = (self.h_candidates, True) if self.h_selection_cv else (form, False)
         est = type(self)(config=self.config, rig=self.rig,
                          members={**dict(self.members or {}), "amplifier_lag": "off"},
                          h_candidates=cands, h_selection_cv=cv, h_selection_prune=self.h_selection_prune,
-                         leakage_search_any_gauge=self.leakage_search_any_gauge)
+                         leakage_search_any_gauge=self.leakage_search_any_gauge, slew_reuse=slew or None)
         try:
             est.fit(corrected, meta)
         except Exception as exc:   # noqa: BLE001 -- a failed recalibration leaves the chain without the member
@@ -2144,7 +2164,8 @@ class SelfSensingEstimator:
                          members={**dict(self.members or {}), "temperature": "off"},
                          h_candidates=cands, h_selection_cv=cv,
                          h_selection_prune=self.h_selection_prune,
-                         leakage_search_any_gauge=self.leakage_search_any_gauge)
+                         leakage_search_any_gauge=self.leakage_search_any_gauge,
+                         slew_reuse=dict((self.amplifier_ or {}).get("slew") or {}) or None)
         return est.fit(corrected, meta), corrected
 
     def _temperature_link(self, trials, meta) -> "SelfSensingEstimator":

@@ -5,7 +5,7 @@ SelfSensingStream` for one model at one sample time, with every parameter as a `
 with 17 significant digits:
 
 1. front: SI conversion, in-amp offset from the first relay segment, trapezoidal charge reset by the relay
-   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the voltage link's lag member (``V - tau gain du/dt``, the backward
+   (``000_18d138f03f1777c3.txt`` eqs. 56-57), the voltage link's slew limit (the delivered command, one state) and lag member (``V - tau gain du/dt``, the backward
    difference over the sample period), the quantiser, absorption and leakage members;
 2. H(Q) of any model the estimator holds: the registry's ``linear``, ``pi``, ``preisach`` (the incremental grid of
    ``hysteresis.models._grid``), ``ri`` (``002_7d89b7147aad52e4.txt`` eqs. 8-11, 15-16), ``duhem``, ``modified_pi``

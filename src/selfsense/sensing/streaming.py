@@ -7,8 +7,11 @@ each carry their state (O(1) memory per sample):
 
 1. **Front** (one compiled loop, :func:`front_kernel`): SI conversion (docs/data_format.md)
    ``V_c = amplifier_gain * u_cmd``, ``V_s = v_shunt / inamp_gain``, actuator voltage ``V = V_c - V_s``
-   (``000_18d138f03f1777c3.txt`` eq. (56)), less ``tau * amplifier_gain * du_cmd/dt`` (backward difference from the
-   previous sample) where the model carries the voltage link's **lag member** (``tau_s`` in the model JSON's
+   (``000_18d138f03f1777c3.txt`` eq. (56)), with ``u_cmd`` the command the amplifier delivered where the model carries
+   the amplifier member's **slew limit** (``rate_v_per_s`` in the model JSON's ``amplifier.slew``,
+   ``selfsense.chain.amplifier.with_slew``: the previous delivered command plus the step clipped to the rate; every
+   later use of the command, the sliding DC reset included, reads it), less ``tau * amplifier_gain * du_cmd/dt``
+   (backward difference from the previous sample) where the model carries the voltage link's **lag member** (``tau_s`` in the model JSON's
    ``amplifier_lag``, ``selfsense.chain.amplifier.lag_column``); charge ``Q = (1/R) int (V_s - offset) dt`` (eq. (57)), trapezoidal
    rule, reset to 0 while ``relay == 1``, written exactly as ``selfsense.signals.charge_from_shunt`` does it (a
    running cumulative sum of the increments minus its value at the last shorted sample, so that the charge is
@@ -135,10 +138,11 @@ def _charge(csum, base, t_last, vs_last, nseen, off, R, Vs, shorted, tk, dt, use
 
 @njit(cache=True)
 def front_kernel(P, S, t, u, v, relay, dt, use_t, q_out, V_out, qm_out, t_out, u_out):
-    """Link 1 on a block: SI conversion, relay offset, charge (eq. 57), the quantiser, absorption and leakage
-    members. Returns (status, index of the first bad sample). ``P`` = [R, inamp_gain, amplifier_gain, g_leak, c_da,
-    a_da, i_q, half_step] (``a_da = exp(-dt / tau)`` of the absorption branch; ``i_q`` the quantiser member's current
-    on the samples off the short's ADC code, ``half_step`` half that step [V]); ``S`` the front state (updated in place); ``t`` ignored
+    """Link 1 on a block: SI conversion, the amplifier's slew limit and lag, relay offset, charge (eq. 57), the
+    quantiser, absorption and leakage members. Returns (status, index of the first bad sample). ``P`` = [R,
+    inamp_gain, amplifier_gain, g_leak, c_da, a_da, i_q, half_step, temperature scale, tau gain, slew rate [V/s]]
+    (``a_da = exp(-dt / tau)`` of the absorption branch; ``i_q`` the quantiser member's current on the samples off the
+    short's ADC code, ``half_step`` half that step [V]; a slew rate of 0: none); ``S`` the front state (updated in place); ``t`` ignored
     unless ``use_t``. Writes the charge the model uses (``q_out``, after the members), the measured charge
     (``qm_out``), V, the sample's time (``t_out``: the time stamp, or the sample period accumulated from 0 without
     time stamps) and the command the amplifier delivered (``u_out``: the command, or its slew-limited value where the
