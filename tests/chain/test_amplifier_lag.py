@@ -5,6 +5,8 @@ already tells the actuator voltage, lowers Table 3 where it is adopted, and the 
 the stream carry the same correction (the C export's agreement: tests/sensing/test_export_c.py)."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -92,6 +94,7 @@ def test_adopted_on_the_simulated_amplifier_and_table3_lowered(clean, fits):
     assert not off.amplifier_lag_["applied"] and "off" in off.amplifier_lag_["note"]
     # a lag is not a slew limit: the amplifier member's slew part finds none on this device (first look)
     assert not auto.amplifier_["slew"]["applied"] and auto.amplifier_["slew"]["rate_v_per_s"] == 0.0
+    json.dumps(auto.amplifier_, allow_nan=False)   # a model artefact: the numbers not computed are None, not NaN
     assert _table3(auto, tr, me, rig) < _table3(off, tr, me, rig)
     # the estimate applies the correction: the model without it gives another estimate of the same samples
     t = "val_disp"

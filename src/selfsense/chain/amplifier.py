@@ -123,18 +123,20 @@ class AmplifierLimit:
 @dataclass
 class SlewLimit:
     """The slew limit seen in the V-Q rows: ``rate_v_per_s`` (0: none), the rows' reference errors with and without
-    it [V], whether the data support it (:func:`identify_slew`)."""
+    it [V] (None: not computed), whether the data support it (:func:`identify_slew`)."""
     rate_v_per_s: float = 0.0
-    insample_v_without: float = float("nan")
-    insample_v_with: float = float("nan")
-    cv_rms_v_without: float = float("nan")
-    cv_rms_v_with: float = float("nan")
-    quantile: float = float("nan")
+    insample_v_without: float | None = None
+    insample_v_with: float | None = None
+    cv_rms_v_without: float | None = None
+    cv_rms_v_with: float | None = None
+    quantile: float | None = None
     supported: bool = False
     note: str = ""
 
     def to_dict(self) -> dict:
-        return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(self).items()}
+        """The record with plain floats, None where a number was not computed or is not finite (JSON artefacts)."""
+        return {k: (float(v) if np.isfinite(v) else None) if isinstance(v, (float, np.floating)) else v
+                for k, v in asdict(self).items()}
 
 
 @njit(cache=True)
