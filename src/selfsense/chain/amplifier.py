@@ -36,8 +36,9 @@ free-tip trial (``V - slope Q`` against ``Q``), on which the reference Preisach 
 at the true rate, because only then is the V-Q relation a rate-independent loop again. Candidates are quantiles of
 the command's own rate (:data:`SLEW_QUANTILES`); where the two fastest lower the in-sample error by
 :data:`SLEW_PROBE_GAIN` the best candidate is refined by a bounded search, and the member is supported where the
-rows' blocked-CV error with it is at most :data:`SLEW_CV_RATIO` of the error without it. A current limit on top of
-the slew is rebuilt as above from the slewed command.
+rows' blocked-CV error with it is at most :data:`SLEW_CV_RATIO` of the error without it. It is searched only where
+the current limit is not supported (a current limit into the actuators' capacitance is a rate limit too, and the
+rebuild above follows the actuator closer); the two are never applied together.
 
 The **lag member** (:func:`lag_column`): an HV amplifier of finite bandwidth (a first-order lag of time constant
 ``tau = 1 / (2 pi f_bw)``, 0.03-0.3 ms for 0.5-5 kHz), or a skew between the DAQ's output and input clocks, delivers

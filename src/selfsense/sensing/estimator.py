@@ -1587,11 +1587,11 @@ class SelfSensingEstimator:
                                                                  "plateau carries the amplifier, no slew search"}
         else:
             self._slew_link(trials, meta, mode, gain)
-        slewed = {t: self._with_slew(df) for t, df in trials.items()}
-        slew_on = bool(self.amplifier_["slew"].get("applied"))
-        if not (lim.supported or (mode == "on" and lim.i_lim > 0 and not slew_on)):
-            return slewed
-        self.voltage_hysteresis_ = self._anchor_h(slewed, meta, lim)
+        if self.slew_rate() > 0:   # carried only where the current limit is not supported: no rebuild on top
+            return {t: self._with_slew(df) for t, df in trials.items()}
+        if not (lim.supported or (mode == "on" and lim.i_lim > 0)):
+            return trials
+        self.voltage_hysteresis_ = self._anchor_h(trials, meta, lim)
         self.amplifier_.update({"applied": True, "source": "forced" if mode == "on" else "current plateau"})
         return {t: self._with_voltage(df) for t, df in trials.items()}
 
@@ -1804,15 +1804,15 @@ class SelfSensingEstimator:
     def _with_slew(self, df: pd.DataFrame) -> pd.DataFrame:
         """The trial with the delivered command and voltage of the amplifier member's slew limit
         (:func:`selfsense.chain.amplifier.with_slew`; unchanged when not applied)."""
-        sl = (self.amplifier_ or {}).get("slew") or {}
-        if not sl.get("applied"):
+        rate = self.slew_rate()
+        if not rate > 0:
             return df
         if "u_cmd" not in df:
             raise ValueError("the model carries the amplifier member's slew limit (the actuator voltage behind a fast "
                              "command): the trial needs its u_cmd column")
         from selfsense.chain.amplifier import with_slew
 
-        return with_slew(df, rig_value(self.rig, "amplifier_gain"), float(sl["rate_v_per_s"]))
+        return with_slew(df, rig_value(self.rig, "amplifier_gain"), rate)
 
     def _start_member(self, name: str, default: str) -> dict:
         """The record of a member decided after the coefficients (``amplifier_lag``, ``temperature``): its mode (the
@@ -2521,6 +2521,12 @@ class SelfSensingEstimator:
     def stress_ridge(self) -> float:
         """The ridge of the stress member's load solve (:func:`selfsense.chain.load.stress_load`; 0 where not chosen)."""
         return float((self.stress_ or {}).get("load_ridge", 0.0))
+
+    def slew_rate(self) -> float:
+        """The amplifier member's slew limit [V/s] (:func:`selfsense.chain.amplifier.with_slew`), 0 where the member
+        does not carry one."""
+        sl = (self.amplifier_ or {}).get("slew") or {}
+        return float(sl["rate_v_per_s"]) if sl.get("applied") else 0.0
 
     def stress_weights(self) -> tuple[float, float]:
         """The stress member's ``(s_H [1/N], s_Q [V/(C N)])`` (``V_H = H(q) + (s_H (H(q) - a_H) + s_Q (Q - a_Q)) f``,

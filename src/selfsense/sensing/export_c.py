@@ -521,7 +521,6 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
     ab = getattr(est, "absorption_", None) or {}
     qz = getattr(est, "quantiser_", None) or {}
     lag = getattr(est, "amplifier_lag_", None) or {}
-    sl = (getattr(est, "amplifier_", None) or {}).get("slew") or {}
     h = _h_spec(est.hysteresis_, float(dt))
     # the load link's creep member (selfsense.chain.creep): its lags at the export's sample period
     cr = getattr(est, "tip_creep_", None) or {}
@@ -538,7 +537,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         # the voltage link's lag member (chain.amplifier.lag_column): tau * gain
         "LAG_K": (float(lag["tau_s"]) * rig_value(rig, "amplifier_gain")) if lag.get("applied") else 0.0,
         # the amplifier member's slew limit (chain.amplifier.with_slew) [V/s]
-        "SLEW": float(sl["rate_v_per_s"]) if sl.get("applied") else 0.0,
+        "SLEW": est.slew_rate() if hasattr(est, "slew_rate") else 0.0,
         "DA_C": float(ab["c_f"]) if ab.get("applied") else 0.0,
         "DA_A": float(np.exp(-float(dt) / float(ab["tau_s"]))) if ab.get("applied") else 0.0,
         "Q_I": float(qz["i_q_a"]) if qz.get("applied") else 0.0,

@@ -882,8 +882,7 @@ class SelfSensingStream:
         lag = getattr(estimator, "amplifier_lag_", None) or {}
         k_lag = float(lag["tau_s"]) * gain if lag.get("applied") else 0.0
         # the amplifier member's slew limit (chain.amplifier.with_slew) [V/s], 0 where not carried
-        sl = (getattr(estimator, "amplifier_", None) or {}).get("slew") or {}
-        slew = float(sl["rate_v_per_s"]) if sl.get("applied") else 0.0
+        slew = estimator.slew_rate()
         self._PF = np.array([R, inamp, gain, g, c_da, a_da, i_q, half_q, self.temperature_scale, k_lag, slew])
         self._PB = np.array([
             c["A1"], c["A2"], c["B21"], c["B22"], float(c.get("dx0", 0.0)),
