@@ -47,6 +47,7 @@ DATES = {
     "gap_stages_20261207": "2026-12-02",
     "gap_stages_20261223": "2026-12-06",
     "gap_stages_20261226": "2026-12-06",
+    "gap_stages_5772156": "2026-12-06",
     "stress_first_20261206": "2026-12-02",
     "stress_wide_20261206": "2026-12-02",
     "stress_solve_20261206": "2026-12-03",
@@ -190,6 +191,8 @@ COMMANDS = {
                            "--out benchmarks/gap_stages/seed_20261223",
     "gap_stages_20261226": "selfsense gap blind --n 1000 --seed 20261226 --jobs 2 "
                            "--out benchmarks/gap_stages/seed_20261226",
+    "gap_stages_5772156": "selfsense gap blind --n 1000 --seed 5772156 --jobs 2 "
+                          "--out benchmarks/gap_stages/seed_5772156",
     "stress_first_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 1,65,102,104,111,124,135,146 "
                              "--jobs 1 --campaign none --out benchmarks/gap_tip/stress_first_20261206.md",
     "stress_wide_20261206": "python benchmarks/tip_cases.py --seed 20261206 --cases 104 --jobs 1 --campaign none "
@@ -908,7 +911,9 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_stages/seed_20261223", "gap_stages_20261223", "; made before the lost-charge form of the "
          "first-loading member, the seed-20261226 rows are the current code (the code before it on that seed: "
          "benchmarks/gap_stages/seed_20261226_before, family top-1 0.849)"),
-        ("benchmarks/gap_stages/seed_20261226", "gap_stages_20261226", ""),
+        ("benchmarks/gap_stages/seed_20261226", "gap_stages_20261226", "; made before the tip-mode member's own null "
+         "floor, the seed-5772156 rows are the current code"),
+        ("benchmarks/gap_stages/seed_5772156", "gap_stages_5772156", ""),
     ], "scores.json")]
     for src, key, note in campaigns:
         s = json.loads((ROOT / src).read_text())
@@ -918,8 +923,8 @@ def gap_figures() -> list[Fig]:
             F(f"gap diagnostic, blind campaign, seed {seed} ({s['n_cases']} cases): family top-1 "
               f"({s['n_library_present']} cases){note}", f"{s['family_top1']:.3f}", ">= 0.95",
               _met(s["family_top1"] >= 0.95)),
-            F(f"gap diagnostic, seed {seed}: member top-1", f"{s['member_top1']:.3f}", ">= 0.85",
-              _met(s["member_top1"] >= 0.85)),
+            F(f"gap diagnostic, seed {seed}: member top-1", f"{s['member_top1']:.3f}", ">= 0.90",
+              _met(s["member_top1"] >= 0.90)),
             F(f"gap diagnostic, seed {seed}: false alarms on effect-free cases ({s['n_effect_free']})",
               f"{s['false_alarm_rate']:.3f}", "<= 0.05", _met(s["false_alarm_rate"] <= 0.05)),
             F(f"gap diagnostic, seed {seed}: median stage-shrink error ({s['n_shrink']} cases)",

@@ -62,6 +62,7 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
+from selfsense.signals import kernels
 from selfsense.signals.runs import true_runs
 
 __all__ = ["AmplifierLimit", "SlewLimit", "shunt_current", "rate_limit", "slew_candidates", "with_slew",
@@ -253,7 +254,7 @@ def shunt_current(df: pd.DataFrame, shunt_resistance_ohm: float) -> np.ndarray:
     """Shunt current ``i = (V_s - offset) / R`` [A] (thesis eq. 57 before the integral; the relay-segment offset of
     :func:`selfsense.signals.prepare_trial`)."""
     off = float(df.attrs.get("v_s_offset_v", 0.0) or 0.0)
-    return (df["V_s"].to_numpy(dtype=float) - off) / float(shunt_resistance_ohm)
+    return kernels.shunt_current(df["V_s"].to_numpy(dtype=float), off, float(shunt_resistance_ohm))
 
 
 def identify_current_limit(trials: Mapping[str, pd.DataFrame], shunt_resistance_ohm: float,

@@ -43,8 +43,7 @@ from collections.abc import Mapping
 import numpy as np
 
 __all__ = ["ANCHOR_TIPS", "MIN_CAMPAIGN_CHANGE", "SCALE_STEPS", "anchor_evidence", "anchor_scale", "anchor_trend",
-           "anchors_of", "calibration_position", "campaign_scales",
-           "secant_slope"]
+           "anchors_of", "calibration_position", "campaign_change", "campaign_scales", "secant_slope"]
 
 #: the tip states whose relation fixes one output of eq. (52): the free tip (zero force), the blocked tip (zero
 #: displacement)
@@ -91,9 +90,15 @@ def anchor_trend(anchors: list[dict], k_c: float) -> tuple[float | None, str]:
     return float(np.linalg.lstsq(X, y, rcond=None)[0][-1]), ""
 
 
+def campaign_change(b: float, n_trials: int) -> float:
+    """The charge-scale change over the campaign implied by the slope ``b`` [per trial]: ``|b| max(n_trials - 1, 1)``
+    (what ``auto`` compares with :data:`MIN_CAMPAIGN_CHANGE`, and the diagnostic's stage ``anchors`` too)."""
+    return abs(float(b)) * max(int(n_trials) - 1, 1)
+
+
 def anchor_evidence(anchors: list[dict], k_c: float, n_trials: int) -> dict:
     """The anchors' evidence of a charge scale drifting over the campaign, as the gap diagnostic reads it (its stage
-    ``anchors``, docs/gap.md): the slope ``b`` of :func:`anchor_trend`, the campaign change ``|b| max(n_trials - 1, 1)``
+    ``anchors``, docs/gap.md): the slope ``b`` of :func:`anchor_trend`, the campaign change (:func:`campaign_change`)
     that ``auto`` compares with :data:`MIN_CAMPAIGN_CHANGE`, and the RMS of the anchors' scales about their tip offsets
     without and with the trend (``rms_offsets``, ``rms_trend``). ``identified`` False (with ``why``) where the slope is
     not identified."""
@@ -104,7 +109,7 @@ def anchor_evidence(anchors: list[dict], k_c: float, n_trials: int) -> dict:
     X, y = _trend_rows(anchors, k_c)
     rms = [float(np.sqrt(np.mean((y - Z @ np.linalg.lstsq(Z, y, rcond=None)[0]) ** 2))) for Z in (X[:, :-1], X)]
     return {**out, "identified": True, "slope_per_trial": float(b),
-            "campaign_change": abs(float(b)) * max(int(n_trials) - 1, 1), "rms_offsets": rms[0], "rms_trend": rms[1]}
+            "campaign_change": campaign_change(b, n_trials), "rms_offsets": rms[0], "rms_trend": rms[1]}
 
 
 def secant_slope(b0: float, b1: float, d1: float) -> float:

@@ -2222,7 +2222,7 @@ class SelfSensingEstimator:
         if b0 is None:
             info["note"] = f"temperature drift not identified: {why}"
             return self
-        change = abs(b0) * max(len(names) - 1, 1)
+        change = tm.campaign_change(b0, len(names))
         info["campaign_change_first"] = change
         if mode == "auto" and change < tm.MIN_CAMPAIGN_CHANGE:
             info["note"] = (f"charge-scale drift over the campaign {change:.2g} < {tm.MIN_CAMPAIGN_CHANGE:g} in the "
@@ -2244,8 +2244,8 @@ class SelfSensingEstimator:
             return self
         self._take_fitted_state(est)
         info.update({"applied": True, "source": "forced" if mode == "on" else "free- and blocked-tip anchors",
-                     "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": abs(b) * max(
-                         len(names) - 1, 1), "scales": scales,
+                     "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": tm.campaign_change(b, len(names)),
+                     "scales": scales,
                      "note": f"charge scale drifting by {b:.3g} per trial of trials.csv: applied"})
         self.temperature_ = info
         self.fit_report_["temperature"] = info
