@@ -88,7 +88,7 @@ def test_the_diagnostic_and_the_stream_see_the_adopted_member(limited):
     """One stage chain: the diagnostic's ``rate.amplifier`` is the estimator's amplifier member (its counterfactual
     recalibrates with the member on, its chain table scores the chain without it); a stream or a C export of a model
     that carries it is refused with the reason (the rebuild needs the sample where the limit lets go)."""
-    from selfsense.gap.counterfactual import CHAIN_MEMBERS, adopted_members
+    from selfsense.gap.counterfactual import CHAIN_MEMBERS, adopted_members, amplifier_parts
     from selfsense.sensing.export_c import ExportError, c_sources
     from selfsense.sensing.streaming import SelfSensingStream
 
@@ -96,8 +96,10 @@ def test_the_diagnostic_and_the_stream_see_the_adopted_member(limited):
     est = _fit(tr, me, rig, "auto")
     assert CHAIN_MEMBERS["rate.amplifier"] == "amplifier"
     assert adopted_members(est)["amplifier"]
+    assert amplifier_parts(est)["current_limit"] and not amplifier_parts(est)["slew"]   # never both (chain.amplifier)
     off = SelfSensingEstimator(config=SensingConfig(amplifier="off"), rig=rig).fit(tr, me)   # the config switch
     assert not adopted_members(off)["amplifier"] and "config amplifier: off" in off.amplifier_["note"]
+    assert not amplifier_parts(off)["current_limit"] and not amplifier_parts(off)["slew"]
     with pytest.raises(NotImplementedError, match="amplifier member"):
         SelfSensingStream(est, dt=1.0 / FS_CASE)
     with pytest.raises(ExportError, match="amplifier member"):

@@ -65,6 +65,9 @@ def test_recovers_the_simulated_slew_and_lowers_table3(case):
     assert sl["applied"] and sl["supported"] and sl["source"] == "V-Q rows" and "applied" in sl["note"]
     assert sl["rate_v_per_s"] == pytest.approx(s_true, rel=0.03)
     assert sl["cv_rms_v_with"] <= SLEW_CV_RATIO * sl["cv_rms_v_without"]
+    # a tip record says which part of the amplifier member was carried: the slew, never with the current-limit rebuild
+    from selfsense.gap.counterfactual import amplifier_parts
+    assert amplifier_parts(est)["slew"] and not amplifier_parts(est)["current_limit"]
     # the delivered command the member rebuilds is the simulator's to a fraction of the command's span
     rebuilt = with_slew(tr["val_disp"], rig.amplifier_gain, sl["rate_v_per_s"])["u_cmd"].to_numpy() * rig.amplifier_gain
     err = np.abs(rebuilt - np.asarray(truth["val_disp"]["V_c"]))

@@ -332,10 +332,12 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
     recorded as ``error_without_matched``; for a joint case: without any of its effects, driven with the voltage the
     case's amplifier applied), while ``true_shrink`` keeps the effect-free twin (:func:`set_model_truths`).
     ``named_by``: the stages that named each effect; ``anchor_change`` / ``twin_anchor_change``: the campaign change of
-    the fitted chain's anchors (stage ``anchors``) on the case and on its effect-free twin (the member's null)."""
+    the fitted chain's anchors (stage ``anchors``) on the case and on its effect-free twin (the member's null);
+    ``adopted``: the chain members the fitted estimator carries (:func:`~selfsense.gap.counterfactual.adopted_members`)
+    and ``amplifier_parts`` which parts of the amplifier member (current-limit rebuild, slew, lag)."""
     from selfsense.sensing.estimator import SelfSensingEstimator, SensingConfig
 
-    from .counterfactual import _make, _summary, counterfactual, tip_table
+    from .counterfactual import _make, _summary, adopted_members, amplifier_parts, counterfactual, tip_table
     from .stages import ANCHOR_MEMBER, anchor_stage
 
     c = draw_tip_case(i, seed) if case is None else case
@@ -361,6 +363,7 @@ def run_tip_case(i: int, seed: int, thresholds: dict | None = None, case: dict |
            "named_by": {e["effect"]: sorted({a["stage"] for a in e["acceptances"]}) for e in d["effects"]},
            "anchor_change": d["stages"].get("anchors", {}).get("gains_alone", {}).get(ANCHOR_MEMBER),
            "twin_anchor_change": twin_anchors,
+           "adopted": adopted_members(fitted), "amplifier_parts": amplifier_parts(fitted),
            "predicted_shrink": {k: v["shrink"] for k, v in cf["effects"].items()},
            "interval": {k: v["shrink_interval_90"] for k, v in cf["effects"].items()},
            "interval_blocks": {k: v["shrink_interval_90_blocks"] for k, v in cf["effects"].items()},

@@ -257,6 +257,14 @@ def adopted_members(fitted) -> dict:
             "amplifier_lag": bool((getattr(fitted, "amplifier_lag_", None) or {}).get("applied", False))}
 
 
+def amplifier_parts(fitted) -> dict:
+    """Which parts of the voltage link's amplifier member the fitted estimator carries: the current-limit rebuild, the
+    slew limit (never both, :mod:`selfsense.chain.amplifier`) and the bandwidth lag."""
+    a = getattr(fitted, "amplifier_", None) or {}
+    return {"current_limit": bool(a.get("applied", False)), "slew": bool((a.get("slew") or {}).get("applied", False)),
+            "lag": bool((getattr(fitted, "amplifier_lag_", None) or {}).get("applied", False))}
+
+
 def _search_of(fitted):
     """The fitted estimator's leakage search (:func:`selfsense.sensing.estimator.leakage_search_of`), or None."""
     from selfsense.sensing.estimator import leakage_search_of
