@@ -115,3 +115,30 @@ def test_bad_inputs():
         fit_modified_pi(np.linspace(0, 1, 10), np.zeros(10), DT)
     with pytest.raises(ValueError, match="gauge"):
         fit_modified_pi(np.linspace(0, 1, 50), np.linspace(0, 2, 50), DT, gauge="nope")
+
+
+def test_osqp_is_not_run_where_pulp_made_its_setup_crash():
+    """In a process that has imported PuLP (as Snakemake's does) HiGHS's C function ``csc_copy`` sits in the global
+    symbol scope and OSQP's setup would call it and die with SIGSEGV (osqp 1.1.3, PuLP 3.3.2). There the QP fit with
+    OSQP configured records why OSQP was not run and is solved by the next solver, and the process lives; OSQP is
+    not among the default fallbacks (the pipeline and a library call fit the same model). Run in a child process:
+    the failure this guards against ends the process that meets it."""
+    import subprocess
+    import sys
+
+    from selfsense.hysteresis.identify import FALLBACK_SOLVERS
+
+    assert "OSQP" not in FALLBACK_SOLVERS
+    code = (
+        "import pulp, numpy as np\n"
+        "from selfsense.hysteresis.identify import fit_modified_pi_robust, osqp_interposed\n"
+        "t = np.linspace(0, 2, 2000); x = np.sin(2 * np.pi * t); y = x + 0.2 * np.tanh(3 * x)\n"
+        "m, rep = fit_modified_pi_robust(x, y, t[1] - t[0], solver='OSQP', n_play=6, n_sup=4, creep=False)\n"
+        "print(osqp_interposed(), rep['solver_attempts'][0][:40], rep['solver_attempts'][-1], rep['rms_pct'] < 5)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, (out.returncode, out.stderr[-2000:])
+    interposed, rest = out.stdout.split(" ", 1)
+    if interposed == "True":   # the PuLP that preloads HiGHS globally is installed (the locked environment's)
+        assert rest.startswith("OSQP: solver OSQP not run") and "CLARABEL: optimal" in rest and rest.strip().endswith(
+            "True"), out.stdout

@@ -97,8 +97,31 @@ def _regressors(xs, ys, r_H, z0, r_S, creep_bank, offset):
     return np.hstack(cols)
 
 
+def osqp_interposed() -> bool:
+    """Whether OSQP's compiled solver would call another library's ``csc_copy`` in this process.
+
+    PuLP (>= 3.3; Snakemake imports it for its scheduler, so every pipeline job that runs in the Snakemake process
+    has it) loads HiGHS's extension with ``RTLD_GLOBAL``. That puts HiGHS's exported C function ``csc_copy`` into the
+    process's global symbol scope, and OSQP's extension (loaded ``RTLD_LOCAL`` by Python) exports and calls a
+    ``csc_copy`` of its own with another signature. The dynamic linker resolves a shared object's calls through the
+    global scope first, so OSQP's setup runs HiGHS's function and the process dies with SIGSEGV: no exception, no
+    message (measured: ``import pulp`` then any ``osqp.OSQP().setup(...)``, osqp 1.1.3, PuLP 3.3.2, highspy 1.16).
+    True where the global scope resolves ``csc_copy``; OSQP is then not called (:func:`_solve_qp` raises instead)."""
+    import ctypes
+
+    try:
+        return hasattr(ctypes.CDLL(None), "csc_copy")
+    except OSError:  # no handle on the global scope (not a dlopen platform): nothing can be interposed through it
+        return False
+
+
 def _solve_qp(R, nH, nS, nK, r_Hs, r_Ss, ys_lo, ys_hi, m, eps, offset, gauge, solver, solver_opts):
     import cvxpy as cp
+
+    if str(solver).upper() == "OSQP" and osqp_interposed():
+        raise IdentificationError("solver OSQP not run: another library in this process (HiGHS, loaded globally by "
+                                  "PuLP, which Snakemake imports) exports the C function csc_copy that OSQP calls, "
+                                  "and OSQP would crash the process (SIGSEGV); use CLARABEL or SCS")
 
     nw = nH + nS + nK + (1 if offset else 0)
     w = cp.Variable(nw)
@@ -243,14 +266,16 @@ def fit_modified_pi(x, y, dt, n_play=15, n_sup=15, n_creep=4, creep=True, solver
     return model, rep
 
 
-#: QP solvers tried, in order, after the configured one fails or raises (only those installed are used)
-FALLBACK_SOLVERS = ("CLARABEL", "OSQP", "SCS", "ECOS")
+#: QP solvers tried, in order, after the configured one fails or raises (only those installed are used). OSQP is not
+#: among them: in the Snakemake process it cannot run (:func:`osqp_interposed`), and a fallback that exists only
+#: outside the pipeline would give the pipeline and a library call different models of the same data
+FALLBACK_SOLVERS = ("CLARABEL", "SCS", "ECOS")
 
 
 def fit_modified_pi_robust(x, y, dt, solver="CLARABEL", solvers=None, **kw):
     """:func:`fit_modified_pi` that tries the configured solver, then every other installed QP solver of
     ``FALLBACK_SOLVERS`` when one fails, raises or does not reach status 'optimal' (e.g. Clarabel on a
-    shape-memory-alloy record that OSQP and SCS solve). Returns (model, report dict with ``solver_attempts``);
+    shape-memory-alloy record that SCS solves). Returns (model, report dict with ``solver_attempts``);
     raises :class:`IdentificationError` listing every attempt when all fail."""
     import cvxpy as cp
 
