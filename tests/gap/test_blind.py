@@ -212,3 +212,18 @@ def test_matched_twin_rescoring_changes_only_the_truth_of_excitation_effects(mon
     (tmp_path / "tip_cases.jsonl.gz").write_bytes(b"")
     with pytest.raises(SystemExit, match="--out must differ"):
         mod.main(["--records", str(tmp_path), "--out", str(tmp_path)])
+
+
+def test_a_weak_tip_mode_is_named_and_its_threshold_clears_its_null():
+    """The tip-mode member's own null floor (docs/gap.md, seed 5772156): its threshold sits well above every gain it
+    took on the 200 effect-free threshold cases, and case 252 of stage seed 20261226 (a tip mode alone, 4 noise floors
+    of its stage, member gain 0.02) is now named; under the stage's default floor (threshold 0.056) it was not."""
+    doc = json.loads(Path(blind.THRESHOLDS_FILE).read_text())
+    thr = doc["thresholds"]["rate.mechanism_mode"]
+    nulls = [r["rate.mechanism_mode"] for r in doc["null_gains"] if r.get("rate.mechanism_mode") is not None]
+    assert len(nulls) == doc["n"] and max(nulls) < 0.25 * thr < thr < 0.01
+    rec = blind.run_case(252, 20261226, truth=False)
+    assert rec["manifest"]["effects"].keys() == {"rate.mechanism_mode"}
+    gain = rec["prediction"]["stages"]["mechanical"]["gains_alone"]["rate.mechanism_mode"]
+    assert 2 * thr < gain < 0.056
+    assert rec["prediction"]["top"] == "rate.mechanism_mode"
