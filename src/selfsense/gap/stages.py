@@ -315,7 +315,7 @@ MEMBERS: dict[str, Member] = {m.name: m for m in [
     # its null is tighter still (95 % quantile 0.0003, largest 0.0007 in 200 effect-free cases, against 0.003-0.005
     # for the charge-path members): the temperature member's floor of 0.002, six times its 95 % quantile, leaves T
     # unchanged (chosen after the tip-mode gains of stage seeds 20261223 and 20261226 had been looked at, where the
-    # default floor left 27 of 81 tip-mode cases unnamed with gains of 0.02-0.2; scored first on a later seed)
+    # default floor left 19 of 81 tip-mode cases with nothing named, gains 0.009-0.055; scored first on a later seed)
     Member("rate.mechanism_mode", "rate", "mechanical", _c_mode, MODE_GRID, "Hz",
            "tip mode: x = a Q + c1 (R_f[Q] - Q) + c2 d/dt R_f[Q] / (2 pi f), R_f a second-order low-pass at f "
            "(zeta 0.05); in-phase and quadrature because the mode also couples back into the charge",

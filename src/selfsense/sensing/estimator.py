@@ -2244,8 +2244,8 @@ class SelfSensingEstimator:
             return self
         self._take_fitted_state(est)
         info.update({"applied": True, "source": "forced" if mode == "on" else "free- and blocked-tip anchors",
-                     "residual_slope_per_trial": d1, "slope_per_trial": b, "campaign_change": tm.campaign_change(b, len(names)),
-                     "scales": scales,
+                     "residual_slope_per_trial": d1, "slope_per_trial": b,
+                     "campaign_change": tm.campaign_change(b, len(names)), "scales": scales,
                      "note": f"charge scale drifting by {b:.3g} per trial of trials.csv: applied"})
         self.temperature_ = info
         self.fit_report_["temperature"] = info
