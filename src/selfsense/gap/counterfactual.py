@@ -244,17 +244,17 @@ def adopted_members(fitted) -> dict:
     if fitted is None or not hasattr(fitted, "members"):
         return {}
     hold_rows = (getattr(fitted, "fit_report_", {}) or {}).get("hysteresis", {}).get("hold_rows", {})
+    amp = amplifier_parts(fitted)
     return {"leakage": bool(getattr(fitted, "leakage_s_", 0.0)), "offset_drift": bool(getattr(fitted, "offset_drift_",
                                                                                               False)),
             "hold_rows": bool(hold_rows.get("applied", False)),
-            "amplifier": bool((a := getattr(fitted, "amplifier_", None) or {}).get("applied", False)
-                              or (a.get("slew") or {}).get("applied", False)),
+            "amplifier": amp["current_limit"] or amp["slew"],
             "absorption": bool((getattr(fitted, "absorption_", None) or {}).get("applied", False)),
             "quantiser": bool((getattr(fitted, "quantiser_", None) or {}).get("applied", False)),
             "stress": bool((getattr(fitted, "stress_", None) or {}).get("applied", False)),
             "tip_creep": bool((getattr(fitted, "tip_creep_", None) or {}).get("applied", False)),
             "temperature": bool((getattr(fitted, "temperature_", None) or {}).get("applied", False)),
-            "amplifier_lag": bool((getattr(fitted, "amplifier_lag_", None) or {}).get("applied", False))}
+            "amplifier_lag": amp["lag"]}
 
 
 def amplifier_parts(fitted) -> dict:
