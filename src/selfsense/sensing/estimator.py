@@ -98,9 +98,9 @@ class SensingConfig:
     hold_rows: str = "auto"
     amplifier: str = "auto"
     absorption: str = "auto"
-    #: off by default: measured on the whole-device benchmark it lowers the force error and raises the displacement
-    #: error of the rate-dependent devices (docs/cross_device.md, "The quantiser member")
-    quantiser: str = "off"
+    #: the quantiser member: "auto" (the default since it is identified on the free-tip laser, docs/method.md 1b')
+    #: where the shunt channel is undithered and the calibration supports it, "off" never
+    quantiser: str = "auto"
     #: the offset-drift member: "auto" where the calibration rows support it, "on" on every trial's rest segments
     #: (docs/cross_device.md, "The offset-drift member forced on"), "off" never
     offset_drift: str = "auto"
@@ -1690,17 +1690,18 @@ class SelfSensingEstimator:
         any calibration trial (:func:`selfsense.chain.charge.charge_resolution`, reference-free), the relay short's
         code leaves an offset error ``e`` of up to half an ADC step, and every sample that reads another code carries
         the current ``e / R`` besides the actuator's (:func:`selfsense.chain.charge.quantiser_column`). The current is
-        one for the device, bounded by half a step over R. It is the value in that bound for which the reference
-        Preisach model of the leakage search (12 x 12 grid, 6 plays, creep) fits the joint calibration rows (6a, the
-        eq. 55 gauge, no leakage, no drift columns) best on ``Q - i_q int m dt`` (bounded scalar search of the
-        least-squares residual). Adopted ("auto") when the blocked-CV error of the same rows (3 folds) is below
-        :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the error without it and the current lies inside its
-        bound (:data:`~selfsense.chain.charge.QUANTISER_AT_BOUND`: an optimum at the bound means the rows want more
-        than an offset rounding can give); forced ("on") whenever the channel is undithered. Returns the trials to fit
-        on (every trial's Q corrected where adopted)."""
-        from scipy.optimize import minimize_scalar
-
-        from selfsense.chain.charge import QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, charge_resolution, quantiser_column
+        one for the device, bounded by half a step over R, and identified on the free-tip calibration trials' laser
+        with the charge link's other slow paths beside it (:func:`selfsense.chain.charge.fit_quantiser`; no H(q) is
+        involved, so a rate-dependent or misfitted H cannot take the column over). Adopted ("auto") when the blocked-CV
+        RMS of those rows with the column is at most :data:`~selfsense.chain.charge.QUANTISER_CV_RATIO` of the RMS
+        without it, the current lies inside its bound (:data:`~selfsense.chain.charge.QUANTISER_AT_BOUND`: an
+        optimum at the bound means the rows want more than an offset rounding can give) and the CV folds agree on it
+        (:data:`~selfsense.chain.charge.QUANTISER_FOLD_SPREAD`: the drive separates the column from a leakage or a
+        drift); forced ("on") whenever the
+        channel is undithered and the laser rows give a current. Returns the trials to fit on (every trial's Q
+        corrected where adopted)."""
+        from selfsense.chain.charge import (QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, QUANTISER_FOLD_SPREAD, charge_resolution,
+                                           fit_quantiser)
 
         mode = self._member_modes()["quantiser"]
         if mode == "auto" and self.config.quantiser == "off":
@@ -1727,33 +1728,38 @@ class SelfSensingEstimator:
             return trials
         half = 0.5 * float(np.median(steps))
         bound = half / R
-        cols = {t: quantiser_column(df, half) for t, df in trials.items()}
-        p = _rig_params(self.rig)
-        slope = 1.0 / (p["n_A"] * p["C_p"])
-
-        def rows(i_q):
-            moved = {t: _with_column(trials[t], "q", trials[t]["q"].to_numpy(dtype=float) - i_q * cols[t])
-                     for t in cal.index}
-            qs, ys, ex, _, _, dt = self._h_segments(moved, cal, slope, 0.0, drift_cols=False)
-            return qs, ys, ex, dt
-
-        i_q = float(minimize_scalar(lambda i: _reference_insample(*rows(i)), bounds=(-bound, bound), method="bounded",
-                                    options={"xatol": bound * 1e-3}).x)
-        cv0, cv1 = _reference_cv(*rows(0.0)), _reference_cv(*rows(i_q))
-        interior = abs(i_q) < QUANTISER_AT_BOUND * bound
-        ok = bool(cv1 < QUANTISER_CV_RATIO * cv0 and interior)
-        applied = ok or mode == "on"
+        free = [t for t in cal.index if cal.loc[t, "tip"] == "free" and cal.loc[t, "reference"] == "displacement"]
+        fit = fit_quantiser({t: trials[t] for t in free}, half)
         self.quantiser_.update({"step_v": 2.0 * half, "current_step_a": 2.0 * bound, "half_step_v": half,
-                                "i_q_a": i_q, "cv_rms_v_without": cv0, "cv_rms_v_with": cv1, "supported": bool(ok),
-                                "at_bound": not interior, "applied": bool(applied)})
+                                "identified_on": fit.trials, "n_rows": fit.n_rows})
+        if not fit.trials or not np.isfinite(fit.cv_rms_m_with) or fit.i_q_a == 0.0:
+            self.quantiser_["note"] = f"undithered shunt channel (ADC step {2 * bound * 1e9:.3g} nA): {fit.note}"
+            return trials
+        i_q = fit.i_q_a
+        cv0, cv1 = fit.cv_rms_m_without, fit.cv_rms_m_with
+        interior = abs(i_q) < QUANTISER_AT_BOUND * bound
+        folds = np.asarray(fit.i_q_folds_a, float)
+        spread = float(np.ptp(folds)) if folds.size and np.all(np.isfinite(folds)) else float("inf")
+        separated = spread <= QUANTISER_FOLD_SPREAD * bound
+        ok = bool(cv1 <= QUANTISER_CV_RATIO * cv0 and interior and separated)
+        applied = ok or mode == "on"
+        if applied and not interior:   # forced on: the current is still an offset rounding, within its bound
+            i_q = float(np.clip(i_q, -bound, bound))
+        self.quantiser_.update({"i_q_a": i_q, "i_q_folds_a": [float(x) for x in folds], "fold_spread_a": spread,
+                                "cv_rms_m_without": cv0, "cv_rms_m_with": cv1, "supported": bool(ok),
+                                "at_bound": not interior, "separated": bool(separated), "applied": bool(applied)})
         verdict = ("applied" if ok else "forced on" if applied else
-                   "not applied (the search ends at its bound, half an ADC step over R: the rows ask for more "
-                   "current than an offset rounding can give, so the column stands in for another misfit)"
+                   f"not applied (the CV folds' currents spread over {spread / bound:.2g} of the bound, more than "
+                   f"{QUANTISER_FOLD_SPREAD:g}: the drive does not separate the column from a leakage or a drift)"
+                   if not separated else
+                   "not applied (the current reaches its bound, half an ADC step over R: the rows ask for more "
+                   "than an offset rounding can give, so the column stands in for another misfit)"
                    if not interior else
-                   f"not applied (the blocked-CV error is not {1 - QUANTISER_CV_RATIO:.0%} lower)")
+                   f"not applied (the blocked-CV RMS with the column is above {QUANTISER_CV_RATIO:g} x the RMS "
+                   "without it)")
         self.quantiser_["note"] = (f"undithered shunt channel (ADC step {2 * bound * 1e9:.3g} nA): offset current "
-                                   f"{i_q * 1e9:.3g} nA on the samples off the short's code, calibration rows' "
-                                   f"blocked-CV error {cv0:.4g} -> {cv1:.4g} V: {verdict}")
+                                   f"{fit.i_q_a * 1e9:.3g} nA on the samples off the short's code, free-tip laser "
+                                   f"rows' blocked-CV RMS {cv0:.4g} -> {cv1:.4g} m: {verdict}")
         if not applied:
             return trials
         return {t: self._with_quantiser(df) for t, df in trials.items()}
