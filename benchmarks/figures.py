@@ -71,6 +71,10 @@ DATES = {
     "whole_device_duhem_joint_fresh70": "2026-12-05",
     "whole_device_joint_before_fresh74": "2026-12-05",
     "whole_device_joint_candidate_fresh74": "2026-12-05",
+    "whole_device_current_fresh76": "2026-12-06",
+    "whole_device_quantiser_laser_fresh76": "2026-12-06",
+    "whole_device_quantiser_before_fresh79": "2026-12-06",
+    "whole_device_quantiser_laser_fresh79": "2026-12-06",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -334,6 +338,20 @@ COMMANDS = {
     "whole_device_joint_candidate_fresh74": "selfsense devices bench --n 2 --first-seed 74 --jobs 1 --protocol thesis "
                                             "--randomise device --out "
                                             "benchmarks/cross_device/whole_device/joint_candidate_fresh74",
+    "whole_device_current_fresh76": "selfsense devices bench --n 3 --first-seed 76 --jobs 2 --protocol thesis "
+                                    "--randomise device --out benchmarks/cross_device/whole_device/current_fresh76 "
+                                    "(the code before the quantiser member on the free-tip laser)",
+    "whole_device_quantiser_laser_fresh76": "selfsense devices bench --n 3 --first-seed 76 --jobs 2 --protocol thesis "
+                                            "--randomise device --configfile quantiser_auto.yaml --out "
+                                            "benchmarks/cross_device/whole_device/quantiser_laser_fresh76 "
+                                            "(quantiser_auto.yaml: calibration: quantiser: auto, the default since)",
+    "whole_device_quantiser_before_fresh79": "selfsense devices bench --n 3 --first-seed 79 --jobs 1 --protocol thesis "
+                                             "--randomise device --out "
+                                             "benchmarks/cross_device/whole_device/quantiser_before_fresh79 (the code "
+                                             "before the quantiser member on the free-tip laser)",
+    "whole_device_quantiser_laser_fresh79": "selfsense devices bench --n 3 --first-seed 79 --jobs 2 --protocol thesis "
+                                            "--randomise device --out "
+                                            "benchmarks/cross_device/whole_device/quantiser_laser_fresh79",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -502,6 +520,10 @@ WHOLE_DUHEM_JOINT72 = "benchmarks/cross_device/whole_device/duhem_joint_fresh72"
 WHOLE_DUHEM_JOINT70 = "benchmarks/cross_device/whole_device/duhem_joint_fresh70"
 WHOLE_JOINT_BEFORE74 = "benchmarks/cross_device/whole_device/joint_before_fresh74"
 WHOLE_JOINT_CAND74 = "benchmarks/cross_device/whole_device/joint_candidate_fresh74"
+WHOLE_CURRENT76 = "benchmarks/cross_device/whole_device/current_fresh76"
+WHOLE_QLASER76 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh76"
+WHOLE_QBEFORE79 = "benchmarks/cross_device/whole_device/quantiser_before_fresh79"
+WHOLE_QLASER79 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh79"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -672,7 +694,7 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_GATE}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, seeds 70-71 (seen once), the "
-                                       "amplifier lag member with its separability gate (current code)",
+                                       "amplifier lag member with its separability gate",
                                        COMMANDS["whole_device_lag_gate_fresh70"], DATES["whole_device_lag_gate_fresh70"])
                + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
@@ -700,17 +722,47 @@ def cross_device_figures() -> list[Fig]:
                                      DATES["whole_device_duhem_joint_fresh70"], history=True)
                if (ROOT / WHOLE_DUHEM_JOINT70 / "cross_device.csv").exists() else [])
             # the joint hold search as a candidate of the selection (docs/method.md 6b'): its first contact on fresh
-            # seeds 74-75 (current code), the code before it on the same devices beside it
+            # seeds 74-75, the code before it on the same devices beside it
             + (_device_table_figures(f"{WHOLE_JOINT_BEFORE74}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 74-75, before the "
                                      "joint hold candidate", COMMANDS["whole_device_joint_before_fresh74"],
                                      DATES["whole_device_joint_before_fresh74"], history=True)
                + _device_table_figures(f"{WHOLE_JOINT_CAND74}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 74-75, the joint "
-                                       "hold candidate (its first contact; current code)",
+                                       "hold candidate (its first contact)",
                                        COMMANDS["whole_device_joint_candidate_fresh74"],
                                        DATES["whole_device_joint_candidate_fresh74"])
                if (ROOT / WHOLE_JOINT_CAND74 / "cross_device.csv").exists() else [])
+            # the quantiser member identified on the free-tip laser and on by default (docs/method.md 1b'): the code
+            # before it on fresh seeds 76-78 (first contact of that code) and with it (seen once); then its first
+            # contact on fresh seeds 79-81 with the code before it on the same devices beside it
+            + (_device_table_figures(f"{WHOLE_CURRENT76}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 76-78, the code "
+                                     "before the quantiser member on the free-tip laser",
+                                     COMMANDS["whole_device_current_fresh76"], DATES["whole_device_current_fresh76"],
+                                     history=True)
+               + _device_table_figures(f"{WHOLE_QLASER76}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, seeds 76-78 (seen once), the "
+                                       "quantiser member on the free-tip laser",
+                                       COMMANDS["whole_device_quantiser_laser_fresh76"],
+                                       DATES["whole_device_quantiser_laser_fresh76"], history=True)
+               if (ROOT / WHOLE_QLASER76 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_QBEFORE79}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 79-81, the code "
+                                     "before the quantiser member on the free-tip laser",
+                                     COMMANDS["whole_device_quantiser_before_fresh79"],
+                                     DATES["whole_device_quantiser_before_fresh79"], history=True)
+               + _device_table_figures(f"{WHOLE_QLASER79}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 79-81, the quantiser "
+                                       "member on the free-tip laser (its first contact; current code)",
+                                       COMMANDS["whole_device_quantiser_laser_fresh79"],
+                                       DATES["whole_device_quantiser_laser_fresh79"])
+               + [_worst_best_fig(f"{WHOLE_QLASER79}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 79-81, the quantiser member on the free-tip laser (first "
+                                  "contact; current code), five families, 3 devices each",
+                                  COMMANDS["whole_device_quantiser_laser_fresh79"],
+                                  DATES["whole_device_quantiser_laser_fresh79"])]
+               if (ROOT / WHOLE_QLASER79 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",

@@ -1,7 +1,8 @@
-"""The quantiser member of the charge link (docs/method.md 1b') on whole-device benchmark devices: what its search
-finds against the simulator's true current, whether the gate adopts it, and Table 3 with it and without it.
+"""The quantiser member of the charge link (docs/method.md 1b') on whole-device benchmark devices: the current it
+identifies against the simulator's true current, whether the gate adopts it, and Table 3 with it and without it.
 
     python benchmarks/quantiser_gate.py --seeds 10-14 --jobs 2 --out benchmarks/cross_device/whole_device/quantiser_gate_fresh10
+    python benchmarks/quantiser_gate.py --seeds 0-14 --link-only --jobs 2 --out benchmarks/cross_device/whole_device/quantiser_laser_seeds0
 
 Per device of the whole-device benchmark on the thesis protocol (``selfsense devices bench --protocol thesis
 --randomise device``: the same draws, drives and noise) this script
@@ -14,8 +15,8 @@ Per device of the whole-device benchmark on the thesis protocol (``selfsense dev
    ``quantiser: auto`` and with ``quantiser: off``; a device where it is not adopted is fitted bit for bit as with it
    off, so it is not scored twice).
 
-Records: ``link.jsonl`` and ``records/{auto,off}/<family>_<preset>_<seed>.json`` (resumable: existing records are
-kept); the summary is ``quantiser_gate.md``. Scoring a set of seeds never used while the gate was built is its first
+``--link-only`` stops after step 1. Records: ``link.jsonl`` and ``records/{auto,off}/<family>_<preset>_<seed>.json``
+(resumable: existing records are kept); the summary is ``quantiser_gate.md``. Scoring a set of seeds never used while the gate was built is its first
 contact.
 """
 from __future__ import annotations
@@ -61,7 +62,8 @@ def _link(args) -> dict:
         R = float(rig.shunt_resistance_ohm)
         true_i = -(short - dev.inamp_offset_v / float(rig.inamp_gain)) / R
         rec.update({"i_q_na": qz["i_q_a"] * 1e9, "bound_na": 0.5 * qz["current_step_a"] * 1e9,
-                    "true_i_q_na": true_i * 1e9, "cv_ratio": qz["cv_rms_v_with"] / qz["cv_rms_v_without"],
+                    "true_i_q_na": true_i * 1e9, "cv_ratio": qz["cv_rms_m_with"] / qz["cv_rms_m_without"],
+                    "fold_spread_of_bound": qz["fold_spread_a"] / (0.5 * qz["current_step_a"]),
                     "at_bound": bool(qz.get("at_bound")), "supported": bool(qz.get("supported"))})
     return rec
 
@@ -82,10 +84,18 @@ def _summary(links: list[dict], scored: dict) -> str:
              f"{' '.join(sys.argv[1:])}`.", ""]
     undith = [r for r in links if r["assessed"]]
     lines += [f"{len(links)} devices; the shunt channel is undithered on {len(undith)} (the member is assessed there); "
-              f"adopted on {sum(r['applied'] for r in links)}; the search ends at its bound on "
-              f"{sum(r.get('at_bound', False) for r in undith)}.", "",
-              "| device | i_q / bound | true i_q / bound (oracle) | blocked-CV ratio | at bound | adopted | "
-              "displacement % off -> auto | force % off -> auto |", "|---|---|---|---|---|---|---|---|"]
+              f"adopted on {sum(r['applied'] for r in links)}; the current reaches its bound on "
+              f"{sum(r.get('at_bound', False) for r in undith)}.", ""]
+    for preset in sorted({r["preset"] for r in undith}):
+        u = [r for r in undith if r["preset"] == preset]
+        err = np.array([abs(r["i_q_na"] - r["true_i_q_na"]) / r["bound_na"] for r in u])
+        closer = sum(abs(r["i_q_na"] - r["true_i_q_na"]) < abs(r["true_i_q_na"]) for r in u)
+        lines.append(f"- {preset}: |identified - true| / bound median {np.median(err):.3f}, 90th percentile "
+                     f"{np.quantile(err, 0.9):.3f}, largest {np.max(err):.3f}; nearer the true current than 0 on "
+                     f"{closer} of {len(u)}; adopted on {sum(r['applied'] for r in u)}")
+    lines += ["", "| device | i_q / bound | true i_q / bound (oracle) | blocked-CV ratio | fold spread / bound | "
+              "at bound | adopted | displacement % off -> auto | force % off -> auto |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(undith, key=lambda r: (r["family"], r["preset"], r["seed"])):
         key = f"{r['family']}_{r['preset']}_{r['seed']}"
         d = f = ""
@@ -95,6 +105,7 @@ def _summary(links: list[dict], scored: dict) -> str:
             f = f"{off['force_pct']:.2f} -> {on['force_pct']:.2f}"
         lines.append(f"| {r['family']} {r['preset']} {r['seed']} | {r['i_q_na'] / r['bound_na']:+.2f} | "
                      f"{r['true_i_q_na'] / r['bound_na']:+.2f} | {r['cv_ratio']:.3f} | "
+                     f"{r.get('fold_spread_of_bound', float('nan')):.3f} | "
                      f"{'yes' if r['at_bound'] else 'no'} | {'yes' if r['applied'] else 'no'} | {d} | {f} |")
     if scored:
         lines += ["", "On the devices where it is adopted (Table 3, % of range; better / worse: by more than 10 %):", "",
@@ -114,6 +125,7 @@ def main(argv=None) -> int:
     ap.add_argument("--presets", default=",".join(PRESETS))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--link-only", action="store_true", help="the links alone (identification and gate), no Table 3")
     a = ap.parse_args(argv)
     from selfsense.determinism import single_thread_blas
 
@@ -138,7 +150,7 @@ def main(argv=None) -> int:
         links = [done[d] for d in devices]
         jobs = []
         for r in links:
-            if not r["applied"]:
+            if not r["applied"] or a.link_only:
                 continue
             for mode in ("auto", "off"):
                 path = out / "records" / mode / f"{r['family']}_{r['preset']}_{r['seed']}.json"

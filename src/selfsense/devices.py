@@ -103,7 +103,9 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     try:
         sigs, meta, rig, _ = simulate_device(sc)
     except sio.ContractError as exc:  # the generator made a dataset the contract rejects: a benchmark failure
-        rec.update({"status": "invalid_dataset", "error": str(exc).splitlines()[0][-300:],
+        # the problems themselves (file, field, what was expected, what was found), not the message's first line:
+        # that names only the temporary folder the dataset was simulated into
+        rec.update({"status": "invalid_dataset", "error": "; ".join(str(p) for p in exc.problems)[:600],
                     "displacement_pct": float("nan"), "force_pct": float("nan")})
         return rec
     try:

@@ -228,3 +228,22 @@ def test_forced_members_are_checked_and_recorded(tmp_path):
     out = bench(1, ["gpi"], ["clean"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
                 members={"offset_drift": "on"})   # resumed: nothing simulated
     assert out.loc[0, "displacement_median_pct"] == pytest.approx(2.0)
+
+
+def test_an_invalid_simulated_dataset_is_recorded_with_its_problems(monkeypatch):
+    """A device whose simulated dataset breaks the data contract is a benchmark failure recorded as
+    ``invalid_dataset`` with the problems themselves (file, field, row, expected, found), not the message's first
+    line, which names only the temporary folder it was simulated into."""
+    import selfsense.devices as devices
+    from selfsense.io.errors import ContractError, Problem
+
+    def broken(sc, with_truth=False):
+        raise ContractError([Problem(file="cal_free_sine.parquet", field="v_shunt", row=1706,
+                                     expected="no flat tops", found="48 samples (0.23 %) at 8.00171 V")],
+                            context="/tmp/selfsense-device-abc/gpi_clean_0")
+
+    monkeypatch.setattr(devices, "simulate_device", broken)
+    rec = devices.run_device("gpi", "clean", 0, protocol="thesis", randomise="device")
+    assert rec["status"] == "invalid_dataset" and np.isnan(rec["displacement_pct"])
+    assert "cal_free_sine.parquet" in rec["error"] and "v_shunt" in rec["error"] and "row 1706" in rec["error"]
+    assert "/tmp" not in rec["error"]

@@ -43,8 +43,8 @@ import pandas as pd
 __all__ = ["ABSORPTION_MIN_GAIN", "ABSORPTION_OVER_LEAK", "ABSORPTION_TAUS_S", "DITHER_MIN_STEPS", "RELAX_TAUS_S",
            "Z_SUPPORT", "AbsorptionFit", "ChargeResolution", "HoldEvidence", "absorption_column", "charge_resolution",
            "find_holds", "fit_absorption", "hold_evidence", "leak_column", "quantisation_step", "QUANTISER_AT_BOUND",
-           "QUANTISER_CV_RATIO", "QUANTISER_FOLD_SPREAD", "QUANTISER_BLOCKS", "QUANTISER_LAGS_S", "QuantiserFit", "fit_quantiser",
-           "quantiser_column"]
+           "QUANTISER_CV_RATIO", "QUANTISER_FOLD_SPREAD", "QUANTISER_BLOCKS", "QUANTISER_LAGS_S", "QuantiserFit",
+           "fit_quantiser", "quantiser_column"]
 
 #: z-score of the hold-estimated leakage conductance above which the holds support the member
 Z_SUPPORT = 4.0
@@ -845,12 +845,12 @@ def fit_quantiser(free_trials: Mapping[str, pd.DataFrame], half_step_v: float,
     held = [b == i for i in range(n_blocks)]
     X0 = np.column_stack([S, P])
     X1 = np.column_stack([S[:, :1], c, S[:, 1:], P])
-    out.n_rows = int(len(y))
+    out.n_rows = len(y)
     out.cv_rms_m_without = _blocked_cv_rms(X0, y, held)
     out.cv_rms_m_with = _blocked_cv_rms(X1, y, held)
     s = np.maximum(np.sqrt(np.mean(X1 * X1, axis=0)), 1e-300)
     beta = np.linalg.lstsq(X1 / s, y, rcond=None)[0] / s
-    if not beta[0] != 0.0:
+    if not np.isfinite(beta[0]) or beta[0] == 0.0:
         out.note = "the laser rows give no charge coefficient: the offset current is not identified"
         return out
     out.i_q_a = float(-beta[1] / beta[0])

@@ -643,7 +643,7 @@ def chain_contributions(trials: dict, meta: pd.DataFrame, rig, make_estimator: C
         row = {"adopted": a, "source": ("holds of every trial" if m == "hold_rows" else
                                         "V-Q rows and current plateau of every trial" if m == "amplifier" else
                                         "laser of the free-tip calibration trials" if m == "absorption" else
-                                        "undithered shunt channel, calibration rows" if m == "quantiser" else
+                                        "undithered shunt channel, free-tip calibration laser" if m == "quantiser" else
                                         "force-reference calibration rows" if m == "stress" else
                                         "command lead, calibration rows" if m == "amplifier_lag" else
                                         drift.get("source" if m == "leakage" else "offset_drift_source", "none"))}

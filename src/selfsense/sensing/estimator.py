@@ -1700,8 +1700,13 @@ class SelfSensingEstimator:
         drift); forced ("on") whenever the
         channel is undithered and the laser rows give a current. Returns the trials to fit on (every trial's Q
         corrected where adopted)."""
-        from selfsense.chain.charge import (QUANTISER_AT_BOUND, QUANTISER_CV_RATIO, QUANTISER_FOLD_SPREAD, charge_resolution,
-                                           fit_quantiser)
+        from selfsense.chain.charge import (
+            QUANTISER_AT_BOUND,
+            QUANTISER_CV_RATIO,
+            QUANTISER_FOLD_SPREAD,
+            charge_resolution,
+            fit_quantiser,
+        )
 
         mode = self._member_modes()["quantiser"]
         if mode == "auto" and self.config.quantiser == "off":
