@@ -1697,9 +1697,8 @@ class SelfSensingEstimator:
         without it, the current lies inside its bound (:data:`~selfsense.chain.charge.QUANTISER_AT_BOUND`: an
         optimum at the bound means the rows want more than an offset rounding can give) and the CV folds agree on it
         (:data:`~selfsense.chain.charge.QUANTISER_FOLD_SPREAD`: the drive separates the column from a leakage or a
-        drift); forced ("on") whenever the
-        channel is undithered and the laser rows give a current. Returns the trials to fit on (every trial's Q
-        corrected where adopted)."""
+        drift); forced ("on") whenever the channel is undithered and the laser rows give a current (clipped to the
+        bound). Returns the trials to fit on (every trial's Q corrected where adopted)."""
         from selfsense.chain.charge import (
             QUANTISER_AT_BOUND,
             QUANTISER_CV_RATIO,
