@@ -69,6 +69,20 @@ def test_no_leakage_is_not_supported():
     assert abs(ev.g_s) < 1e-9
 
 
+def test_holds_bound_the_conductance_they_do_not_measure():
+    """Without leakage, the holds' upper bound (estimate + 4 standard errors, with and without the slow relaxation
+    column) is small against the 20 nS the long holds recover on a leaky device, and that device's bound covers its g."""
+    from selfsense.chain.charge import leakage_upper_bound
+
+    clean = hold_evidence({f"tr{k}": _trial([50.0, 0.0, 100.0, 0.0, 75.0], 20.0, 0.0, seed=k) for k in range(3)})
+    ub = leakage_upper_bound(clean.to_dict())
+    assert ub is not None and 0.0 < ub < 1e-9
+    assert np.isfinite(clean.g_slow_se_s) and clean.g_slow_se_s > 0
+    g = 20e-9
+    leaky = hold_evidence({f"tr{k}": _trial([50.0, 0.0, 100.0, 0.0, 75.0], 20.0, g, seed=k) for k in range(3)})
+    assert leakage_upper_bound(leaky.to_dict()) >= g
+
+
 def test_slow_relaxation_over_short_holds_is_not_called_leakage():
     """A 10 s relaxation seen through 1 s holds looks like a charge ramp at every level: the identifiability check
     refuses it and says which measurement would separate the two."""

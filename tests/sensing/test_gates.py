@@ -52,6 +52,28 @@ def test_calibration_leakage_contradicted_by_the_holds_above_one_and_a_half_time
     assert not E.leakage_contradicted_by_holds(10 * g, None)    # no measurement, no contradiction
 
 
+def test_calibration_leakage_bounded_by_holds_that_measure_none():
+    """Holds that measure no conductance still bound it: a calibration g above 1.5x the largest g they leave
+    possible is contradicted; nothing is bounded without a bound, and a g at or below 0.1 nS is none found."""
+    from selfsense.chain.charge import Z_SUPPORT, leakage_upper_bound
+
+    ev = {"g_s": -8.4e-12, "g_se_s": 5.4e-11, "g_slow_s": -6.4e-11, "g_slow_se_s": 8.0e-11, "n_levels": 8,
+          "n_trials": 8, "resolved": True, "resolution_floor_a": 0.0}
+    ub = leakage_upper_bound(ev)
+    assert ub == pytest.approx(max(-8.4e-12 + Z_SUPPORT * 5.4e-11, -6.4e-11 + Z_SUPPORT * 8.0e-11))
+    assert E.leakage_bounded_by_holds(23.5e-9, ub)
+    assert not E.leakage_bounded_by_holds(1.5 * max(ub, E.LEAK_FOUND_S) * (1 - EPS), ub)
+    assert E.leakage_bounded_by_holds(1.5 * max(ub, E.LEAK_FOUND_S) * (1 + EPS), ub)
+    assert not E.leakage_bounded_by_holds(0.1e-9, 0.0)       # none found is never contradicted
+    assert not E.leakage_bounded_by_holds(23.5e-9, None) and not E.leakage_bounded_by_holds(None, ub)
+    # a slow relaxation that could hide leakage widens the bound, never narrows it
+    assert leakage_upper_bound(dict(ev, g_slow_s=20e-9)) == pytest.approx(20e-9 + Z_SUPPORT * 8.0e-11)
+    # no bound from holds in one trial, at one level, on an undithered channel, or without a standard error
+    for bad in ({"n_trials": 1}, {"n_levels": 1}, {"resolved": False}, {"resolution_floor_a": 1e-7},
+                {"g_se_s": None}, {"g_slow_se_s": None}):
+        assert leakage_upper_bound(dict(ev, **bad)) is None, bad
+
+
 def test_forced_leakage_from_the_calibration_rows_gives_way_to_the_holds_only_where_the_rows_found_none():
     """Leakage forced on: a calibration-row g of at most 0.1 nS (none found) gives way to the holds' measured
     conductance; any g the rows did find stands, however far below the holds' value (a relaxation inflates theirs:

@@ -118,6 +118,8 @@ class HoldEvidence:
     z: float = 0.0
     g_loto_s: list = field(default_factory=list)
     g_slow_s: float = float("nan")
+    #: standard error of ``g_slow_s`` (the slow column and g share the holds' ramps: it is wider than ``g_se_s``)
+    g_slow_se_s: float = float("inf")
     longest_hold_s: float = 0.0
     #: an ADC step [A] of the shunt channel where the noise does not dither it (0: dithered or not known): the
     #: holds' resolution
@@ -131,9 +133,32 @@ class HoldEvidence:
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        for k in ("g_se_s", "g_slow_s"):
+        for k in ("g_se_s", "g_slow_s", "g_slow_se_s"):
             d[k] = float(d[k]) if np.isfinite(d[k]) else None
         return d
+
+
+def leakage_upper_bound(ev: Mapping) -> float | None:
+    """The largest conductance [S] the holds of every trial leave possible (``ev``: :meth:`HoldEvidence.to_dict`):
+    the larger of ``g + Z_SUPPORT se`` and the same with the slow relaxation column (``g_slow + Z_SUPPORT se_slow``,
+    so that a relaxation that could hide leakage over holds short against it widens the bound instead of lowering
+    it). None where the holds cannot bound it: fewer than 2 trials or 2 voltage levels, no standard error, or a
+    shunt channel that does not resolve the current (an undithered ADC step, docs/method.md 1b)."""
+    def num(k, default):
+        v = ev.get(k)
+        return default if v is None else float(v)
+
+    g, se = num("g_s", 0.0), num("g_se_s", float("inf"))
+    gs, se_s = num("g_slow_s", float("nan")), num("g_slow_se_s", float("inf"))
+    if (int(ev.get("n_trials") or 0) < 2 or int(ev.get("n_levels") or 0) < 2 or not ev.get("resolved", True)
+            or num("resolution_floor_a", 0.0) > 0.0 or not (np.isfinite(se) and se > 0)):
+        return None
+    b = [g + Z_SUPPORT * se]
+    if np.isfinite(gs):
+        if not (np.isfinite(se_s) and se_s > 0):
+            return None
+        b.append(gs + Z_SUPPORT * se_s)
+    return float(max(b))
 
 
 def _hold_rows(name: str, k: int, t: np.ndarray, V: np.ndarray, Q: np.ndarray) -> list[dict]:
@@ -334,7 +359,12 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame], R: float | None = None) ->
     # identifiability: over holds short against a relaxation, a slow relaxation current is indistinguishable from
     # a leakage current; g must not move when a slower relaxation column is added
     Xs_, ys_, ws_ = _design(use, kk, True, slow=True)
-    ev.g_slow_s = float(_wls(Xs_, ys_, ws_)[0][0]) if len(ys_) > Xs_.shape[1] else float("nan")
+    if len(ys_) > Xs_.shape[1]:
+        cs_, rss_s = _wls(Xs_, ys_, ws_)
+        ev.g_slow_s = float(cs_[0])
+        if len(kk) >= 2:
+            cov_s = np.linalg.pinv((Xs_ * ws_[:, None]).T @ Xs_) * rss_s / max(len(ys_) - Xs_.shape[1], 1)
+            ev.g_slow_se_s = float(np.sqrt(max(cov_s[0, 0], 0.0)))
     stable = bool(np.isfinite(ev.g_slow_s) and abs(ev.g_slow_s - ev.g_s) <= max(0.25 * abs(ev.g_s), ev.g_se_s))
     ev.longest_hold_s = float(max(r["w"] for r in rows) / 0.7)
     resolved = bool(ev.resolution_floor_a == 0.0 or abs(ev.g_s) * vspan >= Z_SUPPORT * ev.resolution_floor_a)

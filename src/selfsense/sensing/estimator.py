@@ -561,6 +561,16 @@ def leakage_contradicted_by_holds(g_cal: float, g_holds: float | None) -> bool:
 LEAK_FOUND_S = 0.1e-9
 
 
+def leakage_bounded_by_holds(g_cal: float | None, g_bound: float | None) -> bool:
+    """The calibration rows' leakage ``g_cal`` [S] is contradicted where the holds of every trial measure no
+    conductance but bound it (:func:`selfsense.chain.charge.leakage_upper_bound`: their estimate plus ``Z_SUPPORT``
+    standard errors, with and without a slow relaxation) and ``g_cal`` exceeds ``LEAK_HOLD_CONTRADICTION`` (1.5x) that
+    bound (at least 0.1 nS). Measured on an independently written clean device: the calibration rows found
+    15-24 nS where 62 holds in 8 trials give -0.008 +- 0.054 nS (docs/method.md 6c)."""
+    return bool(g_cal is not None and g_bound is not None and g_cal > LEAK_FOUND_S
+                and g_cal > LEAK_HOLD_CONTRADICTION * max(g_bound, LEAK_FOUND_S))
+
+
 def leakage_understated_by_holds(g_cal: float, g_holds: float | None) -> bool:
     """With leakage forced on (``members={"leakage": "on"}``: the gap diagnostic's recalibration of a confirmed
     leakage, or a user's configuration), the calibration rows' ``g_cal`` [S] gives way to the conductance ``g_holds``
@@ -1052,6 +1062,19 @@ class SelfSensingEstimator:
         g_meas = leakage_measured_by_holds(ev)
         info["leakage_s_holds_measured"] = g_meas
         cal_label = "calibration"
+        # where the holds measure no conductance, they still bound it: a calibration g far above everything they
+        # leave possible has taken up more than leakage (auto only: a member forced on keeps its g)
+        from selfsense.chain.charge import Z_SUPPORT, leakage_upper_bound
+
+        g_ub = leakage_upper_bound(ev)
+        info["leakage_s_holds_upper_bound"] = g_ub
+        if modes["leakage"] == "auto" and g_meas is None and leakage_bounded_by_holds(g_cal, g_ub):
+            info["leakage_calibration_contradicted"] = True
+            notes.append(f"the calibration rows' g ({g_cal * 1e9:.3g} nS) exceeds {LEAK_HOLD_CONTRADICTION:g}x the "
+                         f"largest conductance the holds of all trials leave possible ({g_ub * 1e9:.3g} nS: their "
+                         f"estimate plus {Z_SUPPORT:g} standard errors, with and without a slow relaxation): the "
+                         "calibration rows' g is not used")
+            cal_ok = False
         if (cal_ok or modes["leakage"] == "on") and leakage_contradicted_by_holds(g_cal, g_meas):
             cv_meas = cv(g_meas, True)
             info.update({"leakage_calibration_contradicted": True, "cv_rms_v_with_holds_measured_g": cv_meas})
@@ -1168,7 +1191,8 @@ class SelfSensingEstimator:
         use_cv = self.h_selection_cv or not _held_linear_form(self.h_candidates)
         prune = self.h_selection_prune and cfg.h_model == "auto"   # (another h_model reads its kind's rows)
         sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv, prune=prune)
+                             n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv, prune=prune,
+                             probes=self._h_probes(self.leakage_s_))
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
             from selfsense.hysteresis.models import make_model
@@ -1217,7 +1241,8 @@ class SelfSensingEstimator:
                 qs, ys, ex, free_mask, names, dt = self._h_segments(cal_trials, cal, slope, 0.0)
                 holds = self._hold_set(slope, drift_cols=self.offset_drift_)
                 sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
-                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, prune=prune)
+                                     n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, prune=prune,
+                                     probes=self._h_probes(0.0))
                 model = sel.model
         elif (not self.leakage_s_ and LEAK_SELECTED_FORM_RATIO > 0 and cfg.h_model == "auto"
               and self._member_modes()["leakage"] == "auto" and drift_info.get("source") == "none"
@@ -1228,7 +1253,7 @@ class SelfSensingEstimator:
             # recalibration that holds the form decides on the held form's CV, so it reproduces the decision
             sel0 = sel if use_cv else select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
                                                      n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds,
-                                                     prune=prune)
+                                                     prune=prune, probes=self._h_probes(self.leakage_s_))
             got = self._leakage_by_selection(sel0, cal_trials, cal, slope, dt, candidates, drift_info)
             if got is not None:
                 sel, qs, ys, ex, free_mask, names, holds = got
@@ -1258,7 +1283,7 @@ class SelfSensingEstimator:
                                               - y0 + (ex[int(np.flatnonzero(free_mask)[0])] @ sel.extra_coef
                                                       if len(sel.extra_coef) else 0.0))) / rng * 100),
                "drift": drift_info, "stress": dict(self.stress_), "extra_coef": [float(c) for c in sel.extra_coef],
-               "hold_rows": self._hold_rows_report(holds, model),
+               "hold_rows": self._hold_rows_report(holds, model), "envelope": sel.envelope,
                "n_samples_fit": int(sum(len(q) for q in qs))}
         if not use_cv:
             rep["selection_cv"] = (f"held: {model.label()} refitted without blocked CV (h_selection_cv off; "
@@ -1344,7 +1369,7 @@ class SelfSensingEstimator:
         qs, ys, ex, free, names, holds = self._rows_at(cal_trials, cal, slope, g, od)
         sel_g = select_h_model(qs, ys, dt, extras=ex, free=free, candidates=candidates,
                                n_blocks=int(self.config.cv_blocks), trial_names=names, holds=holds,
-                               prune=self.h_selection_prune)
+                               prune=self.h_selection_prune, probes=self._h_probes(g))
         row = next(r for r in sel_g.table if r["selected"])
         cv_g = float(row["cv_rms_mean_v"])
         adopted = bool(np.isfinite(cv_g) and np.isfinite(cv_0) and cv_g < LEAK_SELECTED_FORM_RATIO * cv_0)
@@ -1383,6 +1408,20 @@ class SelfSensingEstimator:
                 f"reference class) has a lower blocked-CV error without it ({cv_0:.4g} V against {cv_g:.4g} V)")
         return {"form": row["label"], "cv_rms_v_with": cv_g, "cv_rms_v_without": cv_0, "leakage_s": g, "kept": kept,
                 "note": note}
+
+    def _h_probes(self, g: float) -> list | None:
+        """The charge paths the H(q) selection's envelope check runs the selected model on
+        (:func:`~selfsense.hysteresis.models.select.envelope_excursion`): every trial's charge, corrected by leakage
+        ``g``, after the relay opens (``(trial, Q)`` pairs; reference-free: V and Q are logged in operation, and no
+        reference of any trial is read). None where the trials are not at hand."""
+        trials = getattr(self, "_all_trials", None) or {}
+        out = []
+        for tid in sorted(trials):
+            df = trials[tid]
+            m = df["relay"].to_numpy() < 0.5
+            if m.sum() >= 10:
+                out.append((tid, self._charge(df, g)[m]))
+        return out or None
 
     def _hold_set(self, slope: float, drift_free: bool = False, drift_cols: bool = False):
         """The reference-free hold rows of every trial (:mod:`selfsense.hysteresis.models.holds`): each trial's

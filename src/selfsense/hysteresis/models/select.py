@@ -107,6 +107,7 @@ class SelectionResult:
     extra_coef: np.ndarray             # coefficients of the extra (joint) columns
     table: list = field(default_factory=list)   # one dict per candidate: kind, label, fold RMS, mean, selected
     warnings: list = field(default_factory=list)
+    envelope: list | None = None       # the envelope checks (:func:`envelope_excursion`) of the refitted candidates
 
 
 def blocked_folds(lengths, n_blocks: int, rotate: bool = False) -> list[np.ndarray]:
@@ -471,7 +472,8 @@ def json_safe_table(table: list[dict]) -> list[dict]:
 @with_one_blas_thread
 def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT_CANDIDATES, n_blocks: int = 5,
                    thin: int = 4, trial_names=None, baseline_only_warn: bool = True,
-                   rotate_folds: bool | None = None, holds=None, cv: bool = True, prune: bool = False) -> SelectionResult:
+                   rotate_folds: bool | None = None, holds=None, cv: bool = True, prune: bool = False,
+                   probes=None) -> SelectionResult:
     """Blocked CV over ``candidates`` on the calibration segments ``(qs[i], ys[i])`` with joint ``extras[i]``
     columns; returns the best model refitted on all rows, its extra coefficients and the selection table.
 
@@ -502,7 +504,12 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     recalibration of tweezer_sim with the stress member forced on: Preisach n_grid 24 stopped after 4 of 5 blocks,
     RI after 2, the Duhem form with creep after 1 fold instead of 2 (about 1.2 s CPU less). The straight line and
     the PI baseline are never stopped (the checks above read them), and nothing is stopped before the straight line
-    is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`)."""
+    is done (its worst fold decides which candidates are unstable, :func:`_reject_unstable`).
+
+    ``probes``: ``(name, q)`` charge paths of every trial (reference-free, from the relay's opening). The selected
+    candidate, refitted on all rows, must keep its output on each within its own major loop
+    (:func:`envelope_excursion`, :data:`ENVELOPE_TOL`); one that does not is marked rejected with the numbers in its
+    status and the next best is selected and refitted (the straight line is never rejected so)."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
     if not holds:
@@ -592,24 +599,27 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
                 table[i] = row(c, None, alt["cv_rms_mean_v"])
     starts = [r.pop("_starts", None) for r in table]
     _reject_unstable(table)
-    ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
-    if not ok:
-        raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
-                                 f"{names}: " + "; ".join(f"{r['label']}: {r['status']}" for r in table))
-    best = min(ok, key=lambda r: r["cv_rms_mean_v"])
-    if not getattr(make_model(best["kind"], **best["params"]), "convex", True):
-        # a model fitted by a non-convex search (local minima, a state that can wander where no data were) is kept
-        # only if it beats the best convex candidate clearly: by more than one standard error of the paired fold
-        # differences (the one-standard-error rule, Hastie, Tibshirani & Friedman, Elements of Statistical
-        # Learning, sec. 7.10), else the convex one is selected
-        convex = [r for r in ok if getattr(make_model(r["kind"], **r["params"]), "convex", True)
-                  and r["kind"] != "linear"]
-        if convex:
-            alt = min(convex, key=lambda r: r["cv_rms_mean_v"])
-            d = np.asarray(alt["cv_rms_v"]) - np.asarray(best["cv_rms_v"])
-            se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
-            if not float(np.mean(d)) > se:
-                best = alt
+    envelope: list = []   # the envelope check of each candidate refitted (the last one is the selected one's)
+    while True:
+        ok = [r for r in table if r["status"] == "ok" and np.isfinite(r["cv_rms_mean_v"])]
+        if not ok:
+            raise DegenerateFitError("H(q) selection: no candidate model could be fitted on the calibration trials "
+                                     f"{names}: " + "; ".join(f"{r['label']}: {r['status']}" for r in table))
+        best = _pick_best(ok)
+        i_best = next(i for i, r in enumerate(table) if r is best)
+        model, extra_coef = _final_fit(best, qs, ys, dt, E, lengths, free, holds,
+                                       kept[1] if kept is not None and kept[0] is best else None,
+                                       starts=starts[i_best])
+        if probes is None or best["kind"] == "linear":
+            break
+        env = envelope_excursion(model, qs, probes, dt)
+        env["label"] = best["label"]
+        envelope.append(env)
+        if not env["excursion"] > ENVELOPE_TOL:
+            break
+        # the refitted model leaves the range of its own major loop on a trial's measured charge: out of the race
+        # (the next best candidate is refitted; the straight line, bounded by construction, is never rejected here)
+        best["status"] = envelope_status(env)
     best["selected"] = True
     warnings = []
     lin = next((r for r in ok if r["kind"] == "linear"), None)
@@ -622,12 +632,80 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
                         f"sample ({best['cv_rms_mean_v']:.4g} V RMS); H is linear (no hysteresis identified)")
     if pis and best["kind"] != "pi" and not best["cv_rms_mean_v"] < min(r["cv_rms_mean_v"] for r in pis):
         warnings.append(f"H(q) on {names}: {best['label']} does not beat the PI baseline out of sample")
+    warnings += [f"H(q) on {names}: {e['label']} " + envelope_status(e).removeprefix("rejected: ") + ": not selected"
+                 for e in envelope if e["excursion"] > ENVELOPE_TOL]
     for w in warnings:
         log.warning(w)
-    model, extra_coef = _final_fit(best, qs, ys, dt, E, lengths, free, holds,
-                                   kept[1] if kept is not None and kept[0] is best else None,
-                                   starts=starts[next(i for i, r in enumerate(table) if r is best)])
-    return SelectionResult(model=model, extra_coef=extra_coef, table=table, warnings=warnings)
+    return SelectionResult(model=model, extra_coef=extra_coef, table=table, warnings=warnings,
+                           envelope=envelope if probes is not None else None)
+
+
+def _pick_best(ok: list[dict]) -> dict:
+    """The row with the lowest blocked-CV mean among ``ok``; a model fitted by a non-convex search (local minima, a
+    state that can wander where no data were) is kept only if it beats the best convex candidate clearly: by more
+    than one standard error of the paired fold differences (the one-standard-error rule, Hastie, Tibshirani &
+    Friedman, Elements of Statistical Learning, sec. 7.10), else the convex one is selected."""
+    best = min(ok, key=lambda r: r["cv_rms_mean_v"])
+    if not getattr(make_model(best["kind"], **best["params"]), "convex", True):
+        convex = [r for r in ok if getattr(make_model(r["kind"], **r["params"]), "convex", True)
+                  and r["kind"] != "linear"]
+        if convex:
+            alt = min(convex, key=lambda r: r["cv_rms_mean_v"])
+            d = np.asarray(alt["cv_rms_v"]) - np.asarray(best["cv_rms_v"])
+            se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
+            if not float(np.mean(d)) > se:
+                best = alt
+    return best
+
+
+#: the selected H(q), run on the measured charge of every trial (reference-free: V and Q are logged in operation),
+#: may leave the range its output spans on the calibration rows by at most this fraction of that range, beyond
+#: what the trial's charge outside the calibrated charge range allows (docs/method.md 6b)
+ENVELOPE_TOL = 0.5
+
+
+def envelope_excursion(model, qs_cal, probes, dt: float) -> dict:
+    """How far ``model``'s output on the charge paths ``probes`` (``(name, q)`` pairs: every trial's charge after
+    the relay opens, from the relaxed state) leaves the range ``[lo, hi]`` of its output on the calibration rows
+    ``qs_cal``, in units of that range: ``max(0, max H - hi, lo - min H) / (hi - lo)`` less the fraction of the
+    calibrated charge range by which the probe's charge goes beyond it (H may go on along its slope there).
+
+    A hysteresis operator with the wiping-out and congruency properties (Preisach, and the PI and Kuhnen operators
+    built from plays) keeps every minor loop inside the major loop that encloses it (Mayergoyz, Mathematical Models
+    of Hysteresis, ch. 1), and a creep part relaxes towards it. The calibration's sine from the relaxed state is
+    such a major loop, so a model whose output on a trial's charge leaves it far has not identified the operator:
+    a Duhem model with polynomial shape functions, or a creep bank held at a level for seconds it never saw, can
+    run away on the minor loops and holds of the validation drives (measured: -80 V against a calibrated -28 to
+    1 V, the tip estimate then pinned at its limit). Returns ``{"excursion", "trial", "range_v", "h_v"}`` of the
+    worst probe (``excursion`` inf where the output is not finite)."""
+    h_cal = [np.asarray(model.predict(np.asarray(q, float), dt), float) for q in qs_cal]
+    lo, hi = float(min(h.min() for h in h_cal)), float(max(h.max() for h in h_cal))
+    qlo, qhi = float(min(np.min(q) for q in qs_cal)), float(max(np.max(q) for q in qs_cal))
+    span, qspan = hi - lo, qhi - qlo
+    worst = {"excursion": 0.0, "trial": None, "range_v": [lo, hi], "h_v": None}
+    if not (span > 0 and qspan > 0):
+        return worst
+    for name, q in probes:
+        q = np.asarray(q, float)
+        if q.size < 2:
+            continue
+        h = np.asarray(model.predict(q, dt), float)
+        if not np.all(np.isfinite(h)):
+            return {**worst, "excursion": float("inf"), "trial": name, "h_v": None}
+        beyond = max(0.0, float(q.max()) - qhi, qlo - float(q.min())) / qspan
+        exc = max(0.0, float(h.max()) - hi, lo - float(h.min())) / span - beyond
+        if exc > worst["excursion"]:
+            worst = {"excursion": exc, "trial": name, "range_v": [lo, hi], "h_v": [float(h.min()), float(h.max())]}
+    return worst
+
+
+def envelope_status(env: dict) -> str:
+    """The selection table's status of a candidate rejected by :func:`envelope_excursion`."""
+    lo, hi = env["range_v"]
+    got = ("a non-finite output" if env["h_v"] is None else
+           f"{env['h_v'][0]:.4g} to {env['h_v'][1]:.4g} V, {env['excursion']:.2f} of that range beyond it")
+    return (f"rejected: leaves its own major loop on the measured charge of trial {env['trial']} ({got}; the "
+            f"calibration rows span {lo:.4g} to {hi:.4g} V; at most {ENVELOPE_TOL:g} of the range is allowed)")
 
 
 #: status of the table rows of a form held without the blocked CV (``select_h_model(..., cv=False)``)
