@@ -75,6 +75,8 @@ DATES = {
     "whole_device_quantiser_laser_fresh76": "2026-12-06",
     "whole_device_quantiser_before_fresh79": "2026-12-06",
     "whole_device_quantiser_laser_fresh79": "2026-12-06",
+    "whole_device_envelope_before_fresh82": "2026-12-06",
+    "whole_device_envelope_after_fresh82": "2026-12-06",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -352,6 +354,13 @@ COMMANDS = {
     "whole_device_quantiser_laser_fresh79": "selfsense devices bench --n 3 --first-seed 79 --jobs 2 --protocol thesis "
                                             "--randomise device --out "
                                             "benchmarks/cross_device/whole_device/quantiser_laser_fresh79",
+    "whole_device_envelope_before_fresh82": "selfsense devices bench --n 3 --first-seed 82 --jobs 2 --protocol thesis "
+                                            "--randomise device --out "
+                                            "benchmarks/cross_device/whole_device/envelope_before_fresh82 (the code "
+                                            "before the major-loop check and the holds' leakage bound)",
+    "whole_device_envelope_after_fresh82": "selfsense devices bench --n 3 --first-seed 82 --jobs 2 --protocol thesis "
+                                           "--randomise device --out "
+                                           "benchmarks/cross_device/whole_device/envelope_after_fresh82",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -524,6 +533,8 @@ WHOLE_CURRENT76 = "benchmarks/cross_device/whole_device/current_fresh76"
 WHOLE_QLASER76 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh76"
 WHOLE_QBEFORE79 = "benchmarks/cross_device/whole_device/quantiser_before_fresh79"
 WHOLE_QLASER79 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh79"
+WHOLE_ENVB82 = "benchmarks/cross_device/whole_device/envelope_before_fresh82"
+WHOLE_ENVA82 = "benchmarks/cross_device/whole_device/envelope_after_fresh82"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -754,15 +765,33 @@ def cross_device_figures() -> list[Fig]:
                                      DATES["whole_device_quantiser_before_fresh79"], history=True)
                + _device_table_figures(f"{WHOLE_QLASER79}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 79-81, the quantiser "
-                                       "member on the free-tip laser (its first contact; current code)",
+                                       "member on the free-tip laser (its first contact)",
                                        COMMANDS["whole_device_quantiser_laser_fresh79"],
-                                       DATES["whole_device_quantiser_laser_fresh79"])
+                                       DATES["whole_device_quantiser_laser_fresh79"], history=True)
                + [_worst_best_fig(f"{WHOLE_QLASER79}/cross_device.csv", "whole-device randomisation, thesis "
                                   "calibration, fresh seeds 79-81, the quantiser member on the free-tip laser (first "
-                                  "contact; current code), five families, 3 devices each",
+                                  "contact), five families, 3 devices each",
                                   COMMANDS["whole_device_quantiser_laser_fresh79"],
-                                  DATES["whole_device_quantiser_laser_fresh79"])]
+                                  DATES["whole_device_quantiser_laser_fresh79"], history=True)]
                if (ROOT / WHOLE_QLASER79 / "cross_device.csv").exists() else [])
+            # the H(q) selection's major-loop check and the holds' upper bound on leakage (docs/method.md 6b, 6c):
+            # fresh seeds 82-84 scored with the code before them (first contact of that code), then with them
+            + (_device_table_figures(f"{WHOLE_ENVB82}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 82-84, the code "
+                                     "before the major-loop check and the holds' leakage bound",
+                                     COMMANDS["whole_device_envelope_before_fresh82"],
+                                     DATES["whole_device_envelope_before_fresh82"], history=True)
+               + _device_table_figures(f"{WHOLE_ENVA82}/cross_device.csv",
+                                       "whole-device randomisation, thesis calibration, fresh seeds 82-84, the major-loop "
+                                       "check and the holds' leakage bound (their first contact; current code)",
+                                       COMMANDS["whole_device_envelope_after_fresh82"],
+                                       DATES["whole_device_envelope_after_fresh82"])
+               + [_worst_best_fig(f"{WHOLE_ENVA82}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 82-84, the major-loop check and the holds' leakage bound "
+                                  "(first contact; current code), five families, 3 devices each",
+                                  COMMANDS["whole_device_envelope_after_fresh82"],
+                                  DATES["whole_device_envelope_after_fresh82"])]
+               if (ROOT / WHOLE_ENVA82 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
