@@ -38,7 +38,7 @@ class WanderH:
 
     def __init__(self, **kw):
         self.extra_coef_ = np.zeros(0)
-        self.inner = PlayH(n_play=12, ridge=1e-9, creep=False)
+        self.inner = PlayH(n_play=30, ridge=1e-12, creep=False)
 
     def label(self):
         return self.kind
@@ -122,3 +122,33 @@ def test_selection_with_probes_inside_the_loop_is_unchanged(monkeypatch):
     assert a.model.label() == b.model.label()
     assert np.array_equal(a.model.predict(q, DT), b.model.predict(q, DT))
     assert len(b.envelope) == 1 and b.envelope[0]["excursion"] <= ENVELOPE_TOL
+
+
+class PlainPlayH(WanderH):
+    """Plays without the wandering state, under a kind of its own (the PI baseline kind is never pruned)."""
+    kind = "test_play"
+
+    def __init__(self, **kw):
+        super().__init__(**kw)
+        self.inner = PlayH(n_play=3, ridge=1e-6, creep=False)
+
+    def predict(self, q, dt=None):
+        return self.inner.predict(q, dt)
+
+
+def test_candidates_pruned_against_a_rejected_model_are_cross_validated_again(monkeypatch):
+    """With pruning (the gap recalibrations' selection), a candidate stopped because the wandering model's CV was
+    lower must come back once that model is rejected: the selection is the same as without pruning."""
+    monkeypatch.setitem(REGISTRY, WanderH.kind, WanderH)
+    monkeypatch.setitem(REGISTRY, PlainPlayH.kind, PlainPlayH)
+    _, q, y = _major_loop()
+    cands = (("linear", {}), ("test_wander", {}), ("test_play", {}))
+    probes = [("val_mixed", _mixed_drive(q.max()))]
+    pruned = select_h_model([q], [y], DT, candidates=cands, n_blocks=5, prune=True)
+    assert pruned.model.kind == "test_wander"
+    assert any(r["status"].startswith("pruned") for r in pruned.table)   # the PI was stopped against it
+    full = select_h_model([q], [y], DT, candidates=cands, n_blocks=5, probes=probes)
+    got = select_h_model([q], [y], DT, candidates=cands, n_blocks=5, prune=True, probes=probes)
+    assert got.model.label() == full.model.label() == "test_play"
+    assert np.array_equal(got.model.predict(q, DT), full.model.predict(q, DT))
+    assert not any(r["status"].startswith("pruned") for r in got.table)

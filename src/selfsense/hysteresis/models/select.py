@@ -509,7 +509,9 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
     ``probes``: ``(name, q)`` charge paths of every trial (reference-free, from the relay's opening). The selected
     candidate, refitted on all rows, must keep its output on each within its own major loop
     (:func:`envelope_excursion`, :data:`ENVELOPE_TOL`); one that does not is marked rejected with the numbers in its
-    status and the next best is selected and refitted (the straight line is never rejected so)."""
+    status and the next best is selected and refitted (the straight line is never rejected so). With ``prune``, the
+    candidates stopped before the next pick are cross-validated in full first, so the selection stays the one without
+    pruning."""
     if not cv:
         return _fit_held(qs, ys, dt, extras, free, candidates, holds, n_blocks, thin, rotate_folds)
     if not holds:
@@ -618,8 +620,17 @@ def select_h_model(qs, ys, dt: float, extras=None, free=None, candidates=DEFAULT
         if not env["excursion"] > ENVELOPE_TOL:
             break
         # the refitted model leaves the range of its own major loop on a trial's measured charge: out of the race
-        # (the next best candidate is refitted; the straight line, bounded by construction, is never rejected here)
+        # (the next best candidate is refitted; the straight line, bounded by construction, is never rejected here).
+        # Candidates stopped against it (prune) are cross-validated in full first: the stop assumed that it, or a
+        # candidate better than them, stays in the race, so the selection is again the one without pruning
         best["status"] = envelope_status(env)
+        redo = [i for i, r in enumerate(table) if r["status"] in (PRUNED_STATUS, PRUNED_SE_STATUS,
+                                                                  PRUNED_BLOCKS_STATUS)]
+        for i in redo:
+            table[i] = row(candidates[i])
+            starts[i] = table[i].pop("_starts", None)
+        if redo:
+            _reject_unstable(table)
     best["selected"] = True
     warnings = []
     lin = next((r for r in ok if r["kind"] == "linear"), None)
