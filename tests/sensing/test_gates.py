@@ -68,9 +68,11 @@ def test_calibration_leakage_bounded_by_holds_that_measure_none():
     assert not E.leakage_bounded_by_holds(23.5e-9, None) and not E.leakage_bounded_by_holds(None, ub)
     # a slow relaxation that could hide leakage widens the bound, never narrows it
     assert leakage_upper_bound(dict(ev, g_slow_s=20e-9)) == pytest.approx(20e-9 + Z_SUPPORT * 8.0e-11)
-    # no bound from holds in one trial, at one level, on an undithered channel, or without a standard error
+    # no bound from holds in one trial, at one level, on an undithered channel, without a standard error, or with an
+    # estimate below zero by more than 4 standard errors (a misspecified hold model: measured -84 +- 7 nS)
     for bad in ({"n_trials": 1}, {"n_levels": 1}, {"resolved": False}, {"resolution_floor_a": 1e-7},
-                {"g_se_s": None}, {"g_slow_se_s": None}):
+                {"g_se_s": None}, {"g_slow_se_s": None}, {"g_s": -84e-9, "g_se_s": 6.7e-9},
+                {"g_slow_s": -1e-9, "g_slow_se_s": 2e-10}):
         assert leakage_upper_bound(dict(ev, **bad)) is None, bad
 
 

@@ -142,8 +142,10 @@ def leakage_upper_bound(ev: Mapping) -> float | None:
     """The largest conductance [S] the holds of every trial leave possible (``ev``: :meth:`HoldEvidence.to_dict`):
     the larger of ``g + Z_SUPPORT se`` and the same with the slow relaxation column (``g_slow + Z_SUPPORT se_slow``,
     so that a relaxation that could hide leakage over holds short against it widens the bound instead of lowering
-    it). None where the holds cannot bound it: fewer than 2 trials or 2 voltage levels, no standard error, or a
-    shunt channel that does not resolve the current (an undithered ADC step, docs/method.md 1b)."""
+    it). None where the holds cannot bound it: fewer than 2 trials or 2 voltage levels, no standard error, a shunt
+    channel that does not resolve the current (an undithered ADC step, docs/method.md 1b), or an estimate below zero
+    by more than ``Z_SUPPORT`` standard errors (a conductance cannot be negative: the holds' model misses what moves
+    their charge, a relaxation or an offset, and says nothing about leakage)."""
     def num(k, default):
         v = ev.get(k)
         return default if v is None else float(v)
@@ -158,7 +160,7 @@ def leakage_upper_bound(ev: Mapping) -> float | None:
         if not (np.isfinite(se_s) and se_s > 0):
             return None
         b.append(gs + Z_SUPPORT * se_s)
-    return float(max(b))
+    return float(max(b)) if min(b) >= 0.0 else None
 
 
 def _hold_rows(name: str, k: int, t: np.ndarray, V: np.ndarray, Q: np.ndarray) -> list[dict]:
@@ -363,8 +365,13 @@ def hold_evidence(trials: Mapping[str, pd.DataFrame], R: float | None = None) ->
         cs_, rss_s = _wls(Xs_, ys_, ws_)
         ev.g_slow_s = float(cs_[0])
         if len(kk) >= 2:
-            cov_s = np.linalg.pinv((Xs_ * ws_[:, None]).T @ Xs_) * rss_s / max(len(ys_) - Xs_.shape[1], 1)
-            ev.g_slow_se_s = float(np.sqrt(max(cov_s[0, 0], 0.0)))
+            # on the columns scaled to unit norm (the slow column and the offset ramps are nearly collinear over
+            # short holds: unscaled, pinv's cut-off drops the direction that carries g's variance)
+            Z_ = Xs_ * np.sqrt(ws_)[:, None]
+            sc_ = np.linalg.norm(Z_, axis=0)
+            sc_[sc_ == 0] = 1.0
+            cov_s = np.linalg.pinv((Z_ / sc_).T @ (Z_ / sc_)) * rss_s / max(len(ys_) - Xs_.shape[1], 1)
+            ev.g_slow_se_s = float(np.sqrt(max(cov_s[0, 0], 0.0))) / float(sc_[0])
     stable = bool(np.isfinite(ev.g_slow_s) and abs(ev.g_slow_s - ev.g_s) <= max(0.25 * abs(ev.g_s), ev.g_se_s))
     ev.longest_hold_s = float(max(r["w"] for r in rows) / 0.7)
     resolved = bool(ev.resolution_floor_a == 0.0 or abs(ev.g_s) * vspan >= Z_SUPPORT * ev.resolution_floor_a)
