@@ -1192,7 +1192,7 @@ class SelfSensingEstimator:
         prune = self.h_selection_prune and cfg.h_model == "auto"   # (another h_model reads its kind's rows)
         sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
                              n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, cv=use_cv, prune=prune,
-                             probes=self._h_probes(self.leakage_s_))
+                             probes=self._h_probes(self.leakage_s_) if cfg.h_model == "auto" else None)
         model = sel.model
         if cfg.h_model not in ("auto",) and model.kind != cfg.h_model and cfg.h_model != "linear":
             from selfsense.hysteresis.models import make_model
@@ -1242,7 +1242,7 @@ class SelfSensingEstimator:
                 holds = self._hold_set(slope, drift_cols=self.offset_drift_)
                 sel = select_h_model(qs, ys, dt, extras=ex, free=free_mask, candidates=candidates,
                                      n_blocks=int(cfg.cv_blocks), trial_names=names, holds=holds, prune=prune,
-                                     probes=self._h_probes(0.0))
+                                     probes=self._h_probes(0.0) if cfg.h_model == "auto" else None)
                 model = sel.model
         elif (not self.leakage_s_ and LEAK_SELECTED_FORM_RATIO > 0 and cfg.h_model == "auto"
               and self._member_modes()["leakage"] == "auto" and drift_info.get("source") == "none"
@@ -1413,7 +1413,8 @@ class SelfSensingEstimator:
         """The charge paths the H(q) selection's envelope check runs the selected model on
         (:func:`~selfsense.hysteresis.models.select.envelope_excursion`): every trial's charge, corrected by leakage
         ``g``, after the relay opens (``(trial, Q)`` pairs; reference-free: V and Q are logged in operation, and no
-        reference of any trial is read). None where the trials are not at hand."""
+        reference of any trial is read). None where the trials are not at hand. Passed with ``h_model: auto`` only:
+        a kind the configuration names is the user's choice, not the selection's."""
         trials = getattr(self, "_all_trials", None) or {}
         out = []
         for tid in sorted(trials):
