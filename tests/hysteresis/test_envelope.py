@@ -152,3 +152,34 @@ def test_candidates_pruned_against_a_rejected_model_are_cross_validated_again(mo
     assert got.model.label() == full.model.label() == "test_play"
     assert np.array_equal(got.model.predict(q, DT), full.model.predict(q, DT))
     assert not any(r["status"].startswith("pruned") for r in got.table)
+
+
+def test_a_configured_kind_that_leaves_its_loop_is_kept_with_a_warning():
+    """A model the configuration names is not rejected: the check reports it and warns, naming the trial."""
+    from selfsense.hysteresis.models.select import configured_envelope
+
+    _, q, y = _major_loop()
+    wander = WanderH().fit([q], [y], DT)
+    env, warn = configured_envelope(wander, [q], [("val_mixed", _mixed_drive(q.max()))], DT, ["cal"])
+    assert env["excursion"] > ENVELOPE_TOL and env["trial"] == "val_mixed" and env["label"] == "test_wander"
+    assert warn is not None and "configured test_wander" in warn and "val_mixed" in warn and "kept" in warn
+    pi = make_model("pi", n_play=10, ridge=1e-6, creep=False).fit([q], [y], DT)
+    env, warn = configured_envelope(pi, [q], [("val_mixed", _mixed_drive(q.max()))], DT, ["cal"])
+    assert warn is None and env["excursion"] <= ENVELOPE_TOL
+
+
+def test_an_infinite_excursion_is_written_as_null_in_the_model_file():
+    """A candidate whose output is not finite has an infinite excursion; the model's JSON (which refuses NaN/inf)
+    records it as null instead of failing the calibration."""
+    import json
+
+    from selfsense.io.atomic import dumps_json
+    from selfsense.sensing.estimator import _json_safe_report
+
+    rep = {"hysteresis": {"selection": [], "envelope": [
+        {"excursion": float("inf"), "trial": "val_mixed", "range_v": [0.0, 1.0], "h_v": None, "label": "x"},
+        {"excursion": 0.1, "trial": "cal", "range_v": [0.0, 1.0], "h_v": [0.0, 1.1], "label": "pi"}]}}
+    with pytest.raises(ValueError, match="NaN/inf"):
+        dumps_json(rep)
+    got = json.loads(dumps_json(_json_safe_report(rep)))["hysteresis"]["envelope"]
+    assert got[0]["excursion"] is None and got[0]["trial"] == "val_mixed" and got[1]["excursion"] == 0.1

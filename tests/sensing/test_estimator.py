@@ -362,3 +362,30 @@ def test_a_second_calibrations_inputs_are_the_callers_again_after_the_block_even
         with est._inputs_overridden(members={"offset_drift": "off"}, leakage_search_reuse=None):
             raise RuntimeError("refit failed")
     assert est.members is members and est.leakage_search_reuse is reuse and est.fit_report_ == {"kept": True}
+
+
+def test_a_configured_h_kind_is_checked_against_its_major_loop_and_kept(data, monkeypatch):
+    """h_model names a kind: the major-loop check (docs/method.md 6b) runs on every trial's charge and is recorded,
+    but never replaces the kind; where the kind leaves its loop the fit report warns and names the trial."""
+    from selfsense.hysteresis.models import select
+
+    trials, meta = data
+    cfg = SensingConfig(h_model="pi", n_creep=0, creep=False, drift="off", dc_offset=False, limit=False)
+    est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    env = est.fit_report_["hysteresis"]["envelope"]
+    assert est.hysteresis_.kind == "pi" and len(env) == 1 and env[0]["excursion"] <= select.ENVELOPE_TOL
+    assert not any("major loop" in w for w in est.fit_report_["hysteresis"]["warnings"])
+    real = select.envelope_excursion
+
+    def runaway(model, qs_cal, probes, dt):   # the model's real check, its worst trial 2 ranges out
+        got = real(model, qs_cal, probes, dt)
+        lo, hi = got["range_v"]
+        return {**got, "excursion": 2.0, "trial": probes[-1][0], "h_v": [lo, hi + 2.0 * (hi - lo)]}
+
+    monkeypatch.setattr(select, "envelope_excursion", runaway)
+    est = SelfSensingEstimator(config=cfg, rig=RIG).fit(trials, meta)
+    assert est.hysteresis_.kind == "pi"
+    warn = [w for w in est.fit_report_["hysteresis"]["warnings"] if "major loop" in w]
+    assert len(warn) == 1 and "configured pi" in warn[0] and "kept because h_model names it" in warn[0]
+    assert "trial val_obj_d" in warn[0]   # the last trial of the sorted probes
+    assert est.fit_report_["hysteresis"]["envelope"][0]["trial"] == "val_obj_d"

@@ -643,13 +643,17 @@ def _force_only_selected(table: list, kind: str) -> list:
 
 
 def _json_safe_report(rep: Mapping[str, Any]) -> dict:
-    """The fit report with the H(q) selection table JSON-safe (a failed candidate's NaN fold errors as null)."""
+    """The fit report with the H(q) selection table JSON-safe (a failed candidate's NaN fold errors as null), and
+    its major-loop checks too (a model whose output on a trial is not finite has an infinite excursion: null)."""
     from selfsense.hysteresis.models.select import json_safe_table
 
     out = dict(rep)
     h = out.get("hysteresis")
     if isinstance(h, Mapping) and h.get("selection"):
-        out["hysteresis"] = {**h, "selection": json_safe_table(list(h["selection"]))}
+        out["hysteresis"] = h = {**h, "selection": json_safe_table(list(h["selection"]))}
+    if isinstance(h, Mapping) and h.get("envelope"):
+        out["hysteresis"] = {**h, "envelope": [{k: None if isinstance(v, float) and not np.isfinite(v) else v
+                                                for k, v in e.items()} for e in h["envelope"]]}
     return out
 
 
@@ -1167,7 +1171,7 @@ class SelfSensingEstimator:
     def _identify_h(self, cal_trials, cal, free, slope):
         """H(q) of the configured ``h_model`` (``auto``: chosen by blocked CV among the registry's candidates),
         identified jointly on free-tip and force-reference calibration trials, after leakage compensation."""
-        from selfsense.hysteresis.models.select import select_h_model
+        from selfsense.hysteresis.models.select import configured_envelope, select_h_model
 
         cfg = self.config
         t0 = time.perf_counter()
@@ -1261,6 +1265,16 @@ class SelfSensingEstimator:
         if self.offset_drift_:
             model, qs, ys, ex, sel.extra_coef, drift_info["joint_refit"] = self._refit_on_drift_free_charge(
                 model, sel, cal_trials, names, slope, dt, qs, ys, ex, holds)
+        if cfg.h_model != "auto" and model.kind != "linear":
+            # a kind the configuration names is not rejected by the major-loop check (docs/method.md 6b), but the user
+            # is told where it leaves its own major loop on a trial's measured charge
+            probes = self._h_probes(self.leakage_s_)
+            if probes:
+                env, warn = configured_envelope(model, qs, probes, dt, names)
+                sel.envelope = [env]
+                if warn:
+                    sel.warnings.append(warn)
+                    log.warning(warn)
         if self.stress_.get("applied") and len(sel.extra_coef) > 2:
             # s_H, s_Q: the stress columns' coefficients in the final joint fit (the columns right after -f_ref)
             self.stress_.update({"s_h_per_n": float(sel.extra_coef[1]), "s_q_v_per_c_n": float(sel.extra_coef[2]),
@@ -1413,16 +1427,19 @@ class SelfSensingEstimator:
         """The charge paths the H(q) selection's envelope check runs the selected model on
         (:func:`~selfsense.hysteresis.models.select.envelope_excursion`): every trial's charge, corrected by leakage
         ``g``, after the relay opens (``(trial, Q)`` pairs; reference-free: V and Q are logged in operation, and no
-        reference of any trial is read). None where the trials are not at hand. Passed with ``h_model: auto`` only:
-        a kind the configuration names is the user's choice, not the selection's."""
+        reference of any trial is read). None where the trials are not at hand. The selection is given them with
+        ``h_model: auto`` only: a kind the configuration names is the user's choice, not the selection's, and is only
+        checked against them for a warning (:func:`~selfsense.hysteresis.models.select.configured_envelope`)."""
+        return [(tid, self._charge(df, g)[m]) for tid, df, m in self._relay_open_trials()] or None
+
+    def _relay_open_trials(self):
+        """``(trial, prepared frame, relay-open mask)`` of every trial at hand (sorted by id) with at least 10 samples
+        after the relay opens: the records the reference-free evidence of the holds and the major-loop check read."""
         trials = getattr(self, "_all_trials", None) or {}
-        out = []
         for tid in sorted(trials):
-            df = trials[tid]
-            m = df["relay"].to_numpy() < 0.5
+            m = trials[tid]["relay"].to_numpy() < 0.5
             if m.sum() >= 10:
-                out.append((tid, self._charge(df, g)[m]))
-        return out or None
+                yield tid, trials[tid], m
 
     def _hold_set(self, slope: float, drift_free: bool = False, drift_cols: bool = False):
         """The reference-free hold rows of every trial (:mod:`selfsense.hysteresis.models.holds`): each trial's
@@ -1438,11 +1455,7 @@ class SelfSensingEstimator:
         if self.config.hold_rows == "off" or self._member_modes()["hold_rows"] == "off":
             return None
         hs = HoldSet(extras=[] if drift_cols else None)
-        for tid in sorted(getattr(self, "_all_trials", {}) or {}):
-            df = self._all_trials[tid]
-            m = df["relay"].to_numpy() < 0.5
-            if m.sum() < 10:
-                continue
+        for tid, df, m in self._relay_open_trials():
             V = df["V"].to_numpy(dtype=float)[m]
             found = find_holds(df["t"].to_numpy(dtype=float)[m], V)
             if not found:

@@ -710,6 +710,21 @@ def envelope_excursion(model, qs_cal, probes, dt: float) -> dict:
     return worst
 
 
+def configured_envelope(model, qs_cal, probes, dt: float, names) -> tuple[dict, str | None]:
+    """The major-loop check (:func:`envelope_excursion`) of a model the configuration names (``h_model`` other than
+    ``auto``): run on the same charge paths as the selection's, but the model is kept -- it is the user's choice --
+    and a warning says what ``auto`` would have done. Returns the check (with the model's ``label``) and the warning,
+    None where the model stays within :data:`ENVELOPE_TOL` of its range."""
+    env = envelope_excursion(model, qs_cal, probes, dt)
+    env["label"] = model.label()
+    if not env["excursion"] > ENVELOPE_TOL:
+        return env, None
+    return env, (f"H(q) on {list(names)}: the configured {model.label()} "
+                 + envelope_status(env).removeprefix("rejected: ")
+                 + "; kept because h_model names it (h_model: auto would not select it): expect runaway estimates on "
+                   "that trial's minor loops and holds")
+
+
 def envelope_status(env: dict) -> str:
     """The selection table's status of a candidate rejected by :func:`envelope_excursion`."""
     lo, hi = env["range_v"]
