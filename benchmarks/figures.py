@@ -77,6 +77,7 @@ DATES = {
     "whole_device_quantiser_laser_fresh79": "2026-12-06",
     "whole_device_envelope_before_fresh82": "2026-12-06",
     "whole_device_envelope_after_fresh82": "2026-12-06",
+    "whole_device_current_fresh85": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -360,7 +361,10 @@ COMMANDS = {
                                             "before the major-loop check and the holds' leakage bound)",
     "whole_device_envelope_after_fresh82": "selfsense devices bench --n 3 --first-seed 82 --jobs 2 --protocol thesis "
                                            "--randomise device --out "
-                                           "benchmarks/cross_device/whole_device/envelope_after_fresh82",
+                                           "benchmarks/cross_device/whole_device/envelope_after_fresh82 (made with "
+                                           "4ce9fac, before the bound's negative-estimate refusal)",
+    "whole_device_current_fresh85": "selfsense devices bench --n 3 --first-seed 85 --jobs 2 --protocol thesis "
+                                    "--randomise device --out benchmarks/cross_device/whole_device/current_fresh85",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -535,6 +539,7 @@ WHOLE_QBEFORE79 = "benchmarks/cross_device/whole_device/quantiser_before_fresh79
 WHOLE_QLASER79 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh79"
 WHOLE_ENVB82 = "benchmarks/cross_device/whole_device/envelope_before_fresh82"
 WHOLE_ENVA82 = "benchmarks/cross_device/whole_device/envelope_after_fresh82"
+WHOLE_CUR85 = "benchmarks/cross_device/whole_device/current_fresh85"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -783,15 +788,26 @@ def cross_device_figures() -> list[Fig]:
                                      DATES["whole_device_envelope_before_fresh82"], history=True)
                + _device_table_figures(f"{WHOLE_ENVA82}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 82-84, the major-loop "
-                                       "check and the holds' leakage bound (their first contact; current code)",
+                                       "check and the holds' leakage bound (their first contact; the seed-85 rows are "
+                                       "the current code)",
                                        COMMANDS["whole_device_envelope_after_fresh82"],
-                                       DATES["whole_device_envelope_after_fresh82"])
+                                       DATES["whole_device_envelope_after_fresh82"], history=True)
                + [_worst_best_fig(f"{WHOLE_ENVA82}/cross_device.csv", "whole-device randomisation, thesis "
                                   "calibration, fresh seeds 82-84, the major-loop check and the holds' leakage bound "
-                                  "(first contact; current code), five families, 3 devices each",
+                                  "(first contact), five families, 3 devices each",
                                   COMMANDS["whole_device_envelope_after_fresh82"],
-                                  DATES["whole_device_envelope_after_fresh82"])]
+                                  DATES["whole_device_envelope_after_fresh82"], history=True)]
                if (ROOT / WHOLE_ENVA82 / "cross_device.csv").exists() else [])
+            # the current code (f64a0a5) on fresh seeds 85-87: its first contact, scored once as it came
+            + (_device_table_figures(f"{WHOLE_CUR85}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 85-87 (first contact "
+                                     "of the current code)",
+                                     COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"])
+               + [_worst_best_fig(f"{WHOLE_CUR85}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 85-87 (first contact of the current code), five families, "
+                                  "3 devices each",
+                                  COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"])]
+               if (ROOT / WHOLE_CUR85 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
