@@ -177,9 +177,10 @@ def test_an_infinite_excursion_is_written_as_null_in_the_model_file():
     from selfsense.sensing.estimator import _json_safe_report
 
     rep = {"hysteresis": {"selection": [], "envelope": [
-        {"excursion": float("inf"), "trial": "val_mixed", "range_v": [0.0, 1.0], "h_v": None, "label": "x"},
+        {"excursion": float("inf"), "trial": "val_mixed", "range_v": [0.0, float("nan")], "h_v": None, "label": "x"},
         {"excursion": 0.1, "trial": "cal", "range_v": [0.0, 1.0], "h_v": [0.0, 1.1], "label": "pi"}]}}
     with pytest.raises(ValueError, match="NaN/inf"):
         dumps_json(rep)
     got = json.loads(dumps_json(_json_safe_report(rep)))["hysteresis"]["envelope"]
     assert got[0]["excursion"] is None and got[0]["trial"] == "val_mixed" and got[1]["excursion"] == 0.1
+    assert got[0]["range_v"] == [0.0, None] and got[1]["h_v"] == [0.0, 1.1]
