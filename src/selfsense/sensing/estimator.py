@@ -652,12 +652,7 @@ def _json_safe_report(rep: Mapping[str, Any]) -> dict:
     if isinstance(h, Mapping) and h.get("selection"):
         out["hysteresis"] = h = {**h, "selection": json_safe_table(list(h["selection"]))}
     if isinstance(h, Mapping) and h.get("envelope"):
-        def null(v):   # a non-finite number as null, inside the ranges too
-            if isinstance(v, (list, tuple)):
-                return [null(x) for x in v]
-            return None if isinstance(v, float) and not np.isfinite(v) else v
-
-        out["hysteresis"] = {**h, "envelope": [{k: null(v) for k, v in e.items()} for e in h["envelope"]]}
+        out["hysteresis"] = {**h, "envelope": json_safe_table(list(h["envelope"]))}
     return out
 
 
