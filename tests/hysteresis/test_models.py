@@ -381,10 +381,10 @@ def test_incremental_preisach_grid_equals_integrating_every_cell(seed):
 
 
 def test_tall_rows_are_reduced_blockwise_to_the_same_fit(monkeypatch):
-    """ridge_lstsq on rows taller than two QR blocks factors them block by block (qr_reduce's tall-skinny QR):
-    the same triangular factor up to row signs, and the same ridge solution (penalty and column scaling of the
-    rows), as one factorisation of all rows; a model's design written into a block of a stacked matrix equals the
-    design on its own."""
+    """ridge_lstsq reduces tall rows to their triangular factor before its pivoted QR (in one block, or block by
+    block above two QR blocks: qr_reduce's tall-skinny QR): the same triangular factor up to row signs, and the same
+    ridge solution (penalty and column scaling of the rows), as the pivoted QR of all rows; a model's design written
+    into a block of a stacked matrix equals the design on its own."""
     import selfsense.hysteresis.models as M
 
     rng = np.random.default_rng(8)
@@ -392,7 +392,11 @@ def test_tall_rows_are_reduced_blockwise_to_the_same_fit(monkeypatch):
     X[:, 3] = X[:, 2] + 1e-9 * rng.standard_normal(5000)   # nearly collinear: the rank-revealing solve must agree
     y = X @ rng.standard_normal(12) + 0.1 * rng.standard_normal(5000)
     pen = np.arange(12) % 2 == 0
-    direct = M.ridge_lstsq(X, y, pen, 1e-3)             # 5000 rows: below two blocks of 4096, no reduction
+    monkeypatch.setattr(M, "QR_MIN_ROWS", 10 ** 9)       # no reduction: the pivoted QR of all 5000 rows
+    direct = M.ridge_lstsq(X, y, pen, 1e-3)
+    monkeypatch.undo()
+    one = M.ridge_lstsq(X, y, pen, 1e-3)                # 5000 rows: reduced in one block (below two of 4096)
+    np.testing.assert_allclose(one, direct, rtol=1e-8, atol=1e-10)
     monkeypatch.setattr(M, "QR_BLOCK_ROWS", 700)         # now 8 blocks
     blocked = M.ridge_lstsq(X, y, pen, 1e-3)
     np.testing.assert_allclose(blocked, direct, rtol=1e-8, atol=1e-10)

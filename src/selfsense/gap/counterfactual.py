@@ -96,6 +96,12 @@ CORRECTION_KIND = {
 #: recalibration with one of them forced on keeps the held H(q) form and shares the H(q) calibration of the same inputs
 #: without it (:func:`_make`)
 OUTSIDE_H_MEMBERS = frozenset({"tip_creep", "temperature"})
+#: members of :data:`OUTSIDE_H_MEMBERS` whose forced-on recalibration selects H(q) once more after the shared
+#: calibration (the temperature member's refit on the corrected charges: seconds, against the shared calibration's
+#: fraction of one): in the pool of :func:`counterfactual` such a recalibration is a unit of its own, not queued behind
+#: the recalibration whose H(q) calibration it would share -- both then run at once, each calibrating H(q) itself
+#: (the same bits: :func:`_make` holds the form either way)
+RESELECTING_MEMBERS = frozenset({"temperature"})
 N_BLOCKS = 6
 
 
@@ -514,18 +520,20 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
             return
         # the recalibrations are independent: each, with the tables scored on it, in a process of its own (the fits
         # hold the GIL most of the time, so threads would take turns); the tables come back, not the estimators
-        groups: dict = {}   # h_key -> recalibration key -> the tables scored on it: one H(q) calibration per unit
+        groups: dict = {}   # unit -> recalibration key -> the tables scored on it: one H(q) calibration per unit
         for S, bare, mem in planned(players):
             mem = members_of(S, bare) if mem is None else mem
             k = refit_key(S, mem)
             if k is not None and (S, tuple(sorted(mem.items()))) not in tabs:
-                per = groups.setdefault(h_key(k), {}).setdefault(k, [])
+                own = any(m in RESELECTING_MEMBERS and v == "on" for m, v in k[1])
+                per = groups.setdefault((h_key(k), k) if own else (h_key(k),), {}).setdefault(k, [])
                 if (S, mem) not in per:
                     per.append((S, mem))
         if sum(len(g) for g in groups.values()) > 1:
-            def unit(hk):
+            def unit(g):
                 out = {}
-                for k, wanted in groups[hk].items():
+                h_users[g[0]] = set(groups[g])   # an H(q) calibration kept here only for this unit's own later keys
+                for k, wanted in groups[g].items():
                     est, mine = refit(k), {}
                     for S, mem in wanted:
                         tr, oc = _apply(trials, [corr[n] for n in sorted(S)], meta)
@@ -534,10 +542,15 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                                                                          seen=mine, inputs_of=inputs_in(S))
                 return out
 
-            for done in fork_map(unit, list(groups), workers):
-                tabs.update(done)
-            for hk, per in groups.items():   # read in the workers: no H(q) calibration is kept here for them
-                h_users[hk] = h_users.get(hk, set()) - set(per)
+            # the units of a reselecting member first (the longest: a worker that takes one last would finish alone),
+            # their tables read back in the planned order (the same dict order as without workers)
+            units = list(groups)
+            first = sorted(range(len(units)), key=lambda i: len(units[i]) == 1)
+            got = dict(zip(first, fork_map(unit, [units[i] for i in first], workers)))
+            for i in range(len(units)):
+                tabs.update(got[i])
+            for g, per in groups.items():   # read in the workers: no H(q) calibration is kept here for them
+                h_users[g[0]] = h_users.get(g[0], set()) - set(per)
 
     plan(planned())
     prefetch()
