@@ -91,16 +91,11 @@ CORRECTION_KIND = {
     "load.stress_hysteresis": "f_out", "load.contact": "f_out", "load.stress_hysteresis@blocked": "voltage_blk",
     "load.stress_hysteresis@blocked_h": "voltage_blk", "hysteresis.one_sided@mechanical": "charge_mech"}
 #: chain members that enter no row of the chain's H(q) calibration (the tip's charge-free creep: columns of the
-#: sensing regression, identified after H(q); the temperature member: decided after the sensing regression, its
-#: recalibrations on the corrected charges select H(q) again, ``SelfSensingEstimator._temperature_refit``); a
-#: recalibration with one of them forced on keeps the held H(q) form and shares the H(q) calibration of the same inputs
-#: without it (:func:`_make`)
+#: sensing regression; the temperature member: decided after it): forced on, a recalibration keeps the held H(q) form
+#: and shares the H(q) calibration of the same inputs without it (:func:`_make`)
 OUTSIDE_H_MEMBERS = frozenset({"tip_creep", "temperature"})
-#: members of :data:`OUTSIDE_H_MEMBERS` whose forced-on recalibration selects H(q) once more after the shared
-#: calibration (the temperature member's refit on the corrected charges: seconds, against the shared calibration's
-#: fraction of one): in the pool of :func:`counterfactual` such a recalibration is a unit of its own, not queued behind
-#: the recalibration whose H(q) calibration it would share -- both then run at once, each calibrating H(q) itself
-#: (the same bits: :func:`_make` holds the form either way)
+#: of those, forced on, these select H(q) again on their corrected charges (``SelfSensingEstimator._temperature_refit``:
+#: seconds, against a fraction of one for the shared calibration): each a pool unit of its own, started first
 RESELECTING_MEMBERS = frozenset({"temperature"})
 N_BLOCKS = 6
 
@@ -532,7 +527,7 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
         if sum(len(g) for g in groups.values()) > 1:
             def unit(g):
                 out = {}
-                h_users[g[0]] = set(groups[g])   # an H(q) calibration kept here only for this unit's own later keys
+                h_users[g[0]] = set(groups[g])   # an H(q) calibration kept only for this unit's own keys
                 for k, wanted in groups[g].items():
                     est, mine = refit(k), {}
                     for S, mem in wanted:
@@ -542,14 +537,10 @@ def counterfactual(trials: dict, meta: pd.DataFrame, rig, verdict: dict, make_es
                                                                          seen=mine, inputs_of=inputs_in(S))
                 return out
 
-            # the units of a reselecting member first (the longest: a worker that takes one last would finish alone),
-            # their tables read back in the planned order (the same dict order as without workers)
-            units = list(groups)
-            first = sorted(range(len(units)), key=lambda i: len(units[i]) == 1)
-            got = dict(zip(first, fork_map(unit, [units[i] for i in first], workers)))
-            for i in range(len(units)):
-                tabs.update(got[i])
+            units = sorted(groups, key=len, reverse=True)   # the longest first; read back in the planned order
+            got = dict(zip(units, fork_map(unit, units, workers)))
             for g, per in groups.items():   # read in the workers: no H(q) calibration is kept here for them
+                tabs.update(got[g])
                 h_users[g[0]] = h_users.get(g[0], set()) - set(per)
 
     plan(planned())

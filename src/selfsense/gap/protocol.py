@@ -13,9 +13,17 @@ import numpy as np
 
 from selfsense.signals.runs import true_runs
 
-from .signals import active, dt_of
-
 __all__ = ["excitation_check", "proposal", "ELEMENTS"]
+
+
+def dt_of(t: np.ndarray) -> float:
+    """Median sample period [s]."""
+    return float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+
+
+def active(df) -> np.ndarray:
+    """True where the actuator leads are not shorted (relay == 0)."""
+    return df["relay"].to_numpy() < 0.5
 
 ELEMENTS = {
     "hold_0V": "a hold of >= 0.8 s at 0 V after an excursion above half the range (offset drift, dielectric absorption)",
