@@ -421,7 +421,7 @@ once more (the same triangular factor up to row signs as one Householder QR of a
 
 
 QR_MIN_ROWS = 256
-"""Rows above which (and above 4 columns per row) :func:`ridge_lstsq` reduces its rows by :func:`qr_reduce` before
+"""Rows above which (and above 4 rows per column) :func:`ridge_lstsq` reduces its rows by :func:`qr_reduce` before
 the pivoted QR: below it the two cost about the same."""
 
 
