@@ -78,6 +78,8 @@ DATES = {
     "whole_device_envelope_before_fresh82": "2026-12-06",
     "whole_device_envelope_after_fresh82": "2026-12-06",
     "whole_device_current_fresh85": "2026-12-07",
+    "whole_device_current_fresh88": "2026-12-07",
+    "whole_device_rest_sign_fresh88": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -365,6 +367,12 @@ COMMANDS = {
                                            "4ce9fac, before the bound's negative-estimate refusal)",
     "whole_device_current_fresh85": "selfsense devices bench --n 3 --first-seed 85 --jobs 2 --protocol thesis "
                                     "--randomise device --out benchmarks/cross_device/whole_device/current_fresh85",
+    "whole_device_current_fresh88": "selfsense devices bench --n 3 --first-seed 88 --jobs 2 --protocol thesis "
+                                    "--randomise device --out benchmarks/cross_device/whole_device/current_fresh88",
+    "whole_device_rest_sign_fresh88": "selfsense devices bench --n 3 --first-seed 88 --jobs 2 --protocol thesis "
+                                      "--randomise device --out benchmarks/cross_device/whole_device/rest_sign_fresh88 "
+                                      "(made with benchmarks/cross_device/whole_device/rest_sign_fresh88/rule.diff "
+                                      "applied to 2c48cc2: a rule not in the code)",
     "whole_device_lag_off_fresh70": "selfsense devices bench --n 2 --first-seed 70 --jobs 2 --protocol thesis "
                                     "--randomise device --member amplifier_lag=off "
                                     "--out benchmarks/cross_device/whole_device/lag_off_fresh70",
@@ -540,6 +548,8 @@ WHOLE_QLASER79 = "benchmarks/cross_device/whole_device/quantiser_laser_fresh79"
 WHOLE_ENVB82 = "benchmarks/cross_device/whole_device/envelope_before_fresh82"
 WHOLE_ENVA82 = "benchmarks/cross_device/whole_device/envelope_after_fresh82"
 WHOLE_CUR85 = "benchmarks/cross_device/whole_device/current_fresh85"
+WHOLE_CUR88 = "benchmarks/cross_device/whole_device/current_fresh88"
+WHOLE_RSIGN88 = "benchmarks/cross_device/whole_device/rest_sign_fresh88"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -808,6 +818,24 @@ def cross_device_figures() -> list[Fig]:
                                   "3 devices each",
                                   COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"])]
                if (ROOT / WHOLE_CUR85 / "cross_device.csv").exists() else [])
+            # the same code on fresh seeds 88-90: its second first contact; then the rest segments' sign test of the
+            # offset drift (a rule not in the code, docs/cross_device.md) on the same devices, its first contact
+            + (_device_table_figures(f"{WHOLE_CUR88}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 88-90 (first contact "
+                                     "of the current code)",
+                                     COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"])
+               + [_worst_best_fig(f"{WHOLE_CUR88}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 88-90 (first contact of the current code), five families, "
+                                  "3 devices each",
+                                  COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"])]
+               if (ROOT / WHOLE_CUR88 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
+                                     "drift adopted from the rests' sign test (its first contact; rejected, not in the "
+                                     "code)",
+                                     COMMANDS["whole_device_rest_sign_fresh88"],
+                                     DATES["whole_device_rest_sign_fresh88"], history=True)
+               if (ROOT / WHOLE_RSIGN88 / "cross_device.csv").exists() else [])
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
