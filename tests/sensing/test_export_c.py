@@ -54,6 +54,8 @@ KINDS = {
     "linear": {"h_model": "pi", "h_identification": "joint"},   # H replaced by the straight line below
     "pi": {"h_model": "pi", "h_identification": "joint"},
     "preisach": {"h_model": "preisach", "h_identification": "joint"},
+    # H replaced below by a Preisach model with plays and its reversible part (PreisachH n_rev)
+    "preisach (reversible)": {"h_model": "preisach", "h_identification": "joint"},
     "ri": {"h_model": "ri", "h_identification": "joint"},
     "duhem": {"h_model": "duhem", "h_identification": "joint"},
     "modified_pi": {"h_model": "modified_pi", "h_identification": "joint"},
@@ -64,7 +66,7 @@ KINDS = {
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
-    from selfsense.hysteresis.models import LinearH
+    from selfsense.hysteresis.models import LinearH, PreisachH
     from selfsense.sensing import SensingConfig
 
     if not SAMPLE.exists():
@@ -82,6 +84,12 @@ def models(tmp_path_factory):
             cal = sigs["cal_free"]
             cal = cal[cal["relay"] < 0.5]
             est.hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
+        if name == "preisach (reversible)":
+            cal = sigs["cal_free"]
+            cal = cal[cal["relay"] < 0.5]
+            est.hysteresis_ = PreisachH(n_grid=8, n_play=5, n_rev=12, ridge=1e-4).fit(
+                cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
+            assert np.ptp(est.hysteresis_.coef_[36 + 5:36 + 5 + 11]) > 0, "the reversible part is not exercised"
         # every member the C code carries: amplifier slew and lag, quantiser, absorption, leakage, stress, rest offset, sliding
         # offset (dx and f), limiting
         est.leakage_s_, est.coef_["dx0"] = 2.0e-9, 1.0e-5

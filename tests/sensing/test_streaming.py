@@ -446,6 +446,7 @@ CASES = {  # name -> estimator config (the synthetic dataset of test_streaming: 
     "linear": {"h_model": "linear", "h_identification": "joint"},
     "pi": {"h_model": "pi", "h_identification": "joint"},
     "preisach": {"h_model": "preisach", "h_identification": "joint"},
+    "preisach (reversible)": {"h_model": "preisach", "h_identification": "joint"},   # H replaced in fitted_kinds
     "ri": {"h_model": "ri", "h_identification": "joint"},
     "duhem": {"h_model": "duhem", "h_identification": "joint"},
     "modified_pi": {"h_model": "modified_pi", "h_identification": "joint"},
@@ -468,10 +469,15 @@ def fitted_kinds(data):
         est, sigs = _fit(d, tmp, dc_offset=False, **cfg)
         out[name] = est
     # h_model 'linear' still lets the selection keep a PI when the straight line is worse: set the line itself
-    from selfsense.hysteresis.models import LinearH
+    from selfsense.hysteresis.models import LinearH, PreisachH
 
     cal = sigs["free_cal"]
     out["linear"].hysteresis_ = LinearH().fit(cal["q"].to_numpy(), cal["V"].to_numpy(), 1e-3)
+    # a Preisach model with plays and its reversible part (PreisachH n_rev: ramps of Q at fixed knots)
+    rev = out["preisach (reversible)"]
+    rev.hysteresis_ = PreisachH(n_grid=8, n_play=5, n_rev=12, ridge=1e-4).fit(cal["q"].to_numpy(),
+                                                                              cal["V"].to_numpy(), 1e-3)
+    assert np.ptp(rev.hysteresis_.coef_[36 + 5:36 + 5 + 11]) > 0, "the reversible part is not exercised"
     # a model JSON written before the thesis identification became the registry's ModifiedPIH holds a GaugedH
     legacy = SelfSensingEstimator.from_dict(out["modified_pi (thesis)"].to_dict(), out["pi"].rig)
     h = legacy.hysteresis_

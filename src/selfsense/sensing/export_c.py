@@ -72,7 +72,8 @@ def _h_spec(h, dt: float) -> dict:
         ntau = len(h.creep_tau_s) if h.creep and h.creep_tau_s else 0
         spec = {"H": "LP", "q_lo": h.q_lo_, "q_span": h.q_span_, "lin": c[nb], "const": c[-1],
                 "relax_g": [-math.expm1(-dt / float(t)) for t in (h.creep_tau_s if ntau else ())],
-                "relax_w": list(c[nb + 1:nb + 1 + ntau]), "basis": "none", "play_r": [], "play_w": [], "grid_n": 0,
+                "relax_w": list(c[nb + 1:nb + 1 + ntau]), "basis": "none", "play_r": [], "play_w": [], "rev_w": [],
+                "grid_n": 0,
                 "grid_w": [], "ri_b": [], "ri_p": [], "ri_scale": 1.0, "ri_depth": 1024}
         w = c[:nb]
         if kind == "pi":
@@ -80,7 +81,8 @@ def _h_spec(h, dt: float) -> dict:
         elif kind == "preisach":
             nc = h.n_grid * (h.n_grid + 1) // 2
             spec.update(basis="preisach", grid_n=h.n_grid, grid_w=w[:nc],
-                        play_r=np.arange(1, h.n_play + 1) / h.n_play * 0.5 if h.n_play else [], play_w=w[nc:])
+                        play_r=np.arange(1, h.n_play + 1) / h.n_play * 0.5 if h.n_play else [],
+                        play_w=w[nc:nc + h.n_play], rev_w=w[nc + h.n_play:])
         elif kind == "ri":
             from selfsense.hysteresis.ri import diagonal_constraint_basis
 
@@ -245,6 +247,20 @@ static double relax_step(ss_state *s, double u)
         y += RELAX_W[j] * (u - s->rz[j]);
     }
     return y;
+}
+"""
+
+_REV = r"""
+static double rev_sum(double u)
+{
+    /* reversible part of the Preisach model (hysteresis.models._grid.reversible_output) */
+    double acc = 0.0;
+    int i;
+    for (i = 0; i < N_REV; i++) {
+        double x = u - REV_K[i];
+        acc += REV_W[i] * (x > 0.0 ? x : 0.0);
+    }
+    return acc;
 }
 """
 
@@ -592,8 +608,14 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
             fields += ["    double rE[RI_DEPTH], rP[RI_DEPTH], ru_prev;", "    int rL;"]
             src.append(_table("RI_B", h["ri_b"]) + _table("RI_P", h["ri_p"]))
             parts.append(_RI)
+        nr = len(h.get("rev_w", []))
+        if nr:   # the Preisach model's reversible part: ramps at the knots i / n_rev (no state)
+            sizes.append(f"#define N_REV {nr}")
+            src.append(_table("REV_K", np.arange(1, nr + 1) / (nr + 1)) + _table("REV_W", h["rev_w"]))
+            parts.append(_REV)
         basis = {"none": "0.0", "play": "play_step(s, u)",
-                 "preisach": "gy" + (" + play_step(s, u)" if np_ else ""), "ri": "ry"}[h["basis"]]
+                 "preisach": "gy" + (" + play_step(s, u)" if np_ else "") + (" + rev_sum(u)" if nr else ""),
+                 "ri": "ry"}[h["basis"]]
         init = ["int i;", "for (i = 0; i < N_RELAX; i++) s->rz[i] = 0.0;"]
         pre = []
         if np_:

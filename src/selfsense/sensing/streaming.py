@@ -393,6 +393,14 @@ def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
         else:
             for k in range(n):
                 out[k] = 0.0
+        wr = _packed_array(PR, _R_EDGES, 5)   # the Preisach model's reversible part (reversible_output)
+        if wr.shape[0]:
+            nk = float(wr.shape[0] + 1)
+            for k in range(n):
+                acc = 0.0
+                for i in range(wr.shape[0]):
+                    acc += wr[i] * max(u[k] - float(i + 1) / nk, 0.0)
+                out[k] = out[k] + acc
         for k in range(n):
             out[k] = out[k] + a * u[k]
     g = _packed_array(PR, _R_EDGES, 3)
@@ -489,11 +497,12 @@ def _registry_params(model, dt: float) -> np.ndarray | None:
     ng = model.n_grid if cls is PreisachH else 0
     nw = ng * (ng + 1) // 2
     r = model._play_thresholds() if cls is not LinearH else none
-    if nb != nw + len(r):
+    nr = max(model.n_rev - 1, 0) if cls is PreisachH else 0   # the reversible part's ramps (knots i / n_rev)
+    if nb != nw + len(r) + nr:
         return None
     return _pack([_FORM_BASIS, q_lo, q_span, ng, c[nb], c[-1], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-                 [c[:nw], r, c[nw:nb], relaxation_gains(dt, taus) if taus else none, c[nb + 1:nb + 1 + len(taus)],
-                  none])
+                 [c[:nw], r, c[nw:nw + len(r)], relaxation_gains(dt, taus) if taus else none,
+                  c[nb + 1:nb + 1 + len(taus)], c[nw + len(r):nb]])
 
 
 def _float_vector(x, n: int | None = None) -> bool:

@@ -32,7 +32,7 @@ import numpy as np
 from ._duhem import duhem_run
 from ._grid import (grid_state, play_features, play_output, play_output_kernel, preisach_grid_features,
                     preisach_grid_kernel, preisach_grid_output, preisach_grid_rows, relaxation_bank, relaxation_gains,
-                    relaxation_output, relaxation_output_kernel)
+                    relaxation_output, relaxation_output_kernel, reversible_features, reversible_output)
 
 __all__ = ["REGISTRY", "LinearParamH", "LinearH", "PlayH", "PreisachH", "RIH", "ModifiedPIH", "DuhemH", "h_from_dict",
            "make_model", "searches_holds", "without_hold_search", "DEFAULT_CREEP_TAU_S", "DegenerateFitError",
@@ -526,19 +526,28 @@ class PreisachH(LinearParamH):
     kind = "preisach"
 
     def __init__(self, n_grid: int = 12, n_play: int = 0, ridge: float = 1e-6, creep: bool = True,
-                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, nonneg: bool = False):
+                 creep_tau_s: Sequence[float] = DEFAULT_CREEP_TAU_S, nonneg: bool = False, n_rev: int = 0):
         super().__init__(ridge, creep, creep_tau_s)
         if int(n_grid) < 2:
             raise ValueError(f"PreisachH: n_grid must be >= 2, got {n_grid!r}")
         if int(n_play) < 0:
             raise ValueError(f"PreisachH: n_play must be >= 0, got {n_play!r}")
+        if int(n_rev) < 0 or int(n_rev) == 1:
+            raise ValueError(f"PreisachH: n_rev must be 0 or >= 2, got {n_rev!r}")
         self.n_grid = int(n_grid)
         self.n_play = int(n_play)
+        self.n_rev = int(n_rev)
         self.nonneg = bool(nonneg)
 
     def _params(self) -> dict:
         p = {"n_grid": self.n_grid, "n_play": self.n_play}
+        if self.n_rev:
+            p["n_rev"] = self.n_rev
         return {**p, "nonneg": True} if self.nonneg else p
+
+    def _rev_knots(self) -> np.ndarray:
+        """The reversible part's knots ``k_i = i / n_rev``, i = 1 .. n_rev - 1 (:meth:`_basis`)."""
+        return np.arange(1, self.n_rev) / self.n_rev if self.n_rev else np.zeros(0)
 
     def _bounds(self, n_cols: int):
         """Non-negative Preisach density (cell and play weights) when ``nonneg``: every hysteron adds to the output
@@ -568,7 +577,9 @@ class PreisachH(LinearParamH):
         preisach_grid_features(u, 0.0, 1.0, self.n_grid, int(stride), out=out[:, :nc])
         if self.n_play:
             r = self._play_thresholds()
-            out[:, nc:] = play_features(u, r, int(stride))
+            out[:, nc:nc + self.n_play] = play_features(u, r, int(stride))
+        if self.n_rev:
+            out[:, nc + self.n_play:] = reversible_features(u[::int(stride)], self._rev_knots())
 
     def _basis_rows_into(self, u, stride, rows, out):
         """The grid features of the rows asked for only (:func:`~selfsense.hysteresis.models._grid.preisach_grid_rows`:
@@ -579,13 +590,15 @@ class PreisachH(LinearParamH):
         preisach_grid_rows(u, 0.0, 1.0, self.n_grid, int(stride), rows, out=out[:, :nc])
         if self.n_play:
             r = self._play_thresholds()
-            out[:, nc:] = play_features(u, r, int(stride))[rows]
+            out[:, nc:nc + self.n_play] = play_features(u, r, int(stride))[rows]
+        if self.n_rev:
+            out[:, nc + self.n_play:] = reversible_features(u[::int(stride)][rows], self._rev_knots())
 
     def _basis_state(self):
         return {"grid": grid_state(self.n_grid), "play": np.zeros(self.n_play)}
 
     def _n_basis(self) -> int:
-        return self.n_grid * (self.n_grid + 1) // 2 + self.n_play
+        return self.n_grid * (self.n_grid + 1) // 2 + self.n_play + max(self.n_rev - 1, 0)
 
     def _basis_dot(self, u, w, state=None):
         st = self._basis_state() if state is None else state
@@ -594,7 +607,9 @@ class PreisachH(LinearParamH):
         y = preisach_grid_output(u, 0.0, 1.0, self.n_grid, w[:nc], st["grid"])
         if self.n_play:
             r = self._play_thresholds()
-            y = y + play_output(u, r, w[nc:], st["play"])
+            y = y + play_output(u, r, w[nc:nc + self.n_play], st["play"])
+        if self.n_rev:
+            y = y + reversible_output(u, self._rev_knots(), w[nc + self.n_play:])
         return y
 
 

@@ -17,7 +17,7 @@ from numba import njit
 
 __all__ = ["preisach_grid_features", "preisach_grid_rows", "preisach_grid_output", "relaxation_bank",
            "relaxation_output", "GRID_STACK", "grid_state", "play_output", "relaxation_gains", "preisach_grid_kernel",
-           "play_output_kernel", "relaxation_output_kernel"]
+           "play_output_kernel", "relaxation_output_kernel", "reversible_features", "reversible_output"]
 
 _BIG = 1e300
 #: the weighted grid output is updated by the changed cells only and summed over every cell afresh every _RESYNC
@@ -377,3 +377,33 @@ def play_features(u, r, stride):
         if k % stride == 0:
             F[k // stride, :] = z
     return F
+
+
+@njit(cache=True, nogil=True)
+def reversible_features(u, k):
+    """The reversible (memoryless) part of a Preisach model: ramps ``max(u - k_i, 0)`` at the knots ``k``, so that
+    with the model's linear column any continuous piecewise-linear function of ``u`` with these knots is a weighted
+    sum. The density of a Preisach model concentrated on the line alpha = beta is a function of the input alone
+    (Mayergoyz, "Mathematical Models of Hysteresis", ch. 1: the reversible component); a cell-constant grid can
+    resolve it only at its cell size and with the cells' hysteresis, a steep anhysteretic rise (a Langevin curve, a
+    thin-loop hysteron) needs it at a finer resolution."""
+    F = np.empty((u.size, k.size))
+    for j in range(u.size):
+        x = u[j]
+        for i in range(k.size):
+            F[j, i] = max(x - k[i], 0.0)
+    return F
+
+
+@njit(cache=True, nogil=True)
+def reversible_output(u, k, w):
+    """``sum_i w_i max(u - k_i, 0)`` (:func:`reversible_features` weighted), sample by sample in the order of the
+    knots: no state."""
+    y = np.empty(u.size)
+    for j in range(u.size):
+        x = u[j]
+        acc = 0.0
+        for i in range(k.size):
+            acc += w[i] * max(x - k[i], 0.0)
+        y[j] = acc
+    return y

@@ -39,6 +39,8 @@ DEFAULT_CANDIDATES: tuple = (
     ("preisach", {"n_grid": 12, "n_play": 10, "ridge": 1e-4}),
     ("preisach", {"n_grid": 16, "n_play": 10, "ridge": 1e-3}),
     ("preisach", {"n_grid": 24, "n_play": 0, "ridge": 1e-6}),
+    ("preisach", {"n_grid": 12, "n_play": 10, "ridge": 1e-4, "n_rev": 48}),
+    ("preisach", {"n_grid": 24, "n_play": 0, "ridge": 1e-6, "n_rev": 48}),
     ("ri", {"ridge": 1e-8}),
     ("modified_pi", {"n_play": 12, "n_sup": 6, "n_creep": 3}),
     ("duhem", {"degree": 3, "ridge": 1e-7}),
