@@ -80,6 +80,7 @@ DATES = {
     "whole_device_current_fresh85": "2026-12-07",
     "whole_device_current_fresh88": "2026-12-07",
     "whole_device_rest_sign_fresh88": "2026-12-07",
+    "whole_device_reversible_fresh91": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -369,6 +370,9 @@ COMMANDS = {
                                     "--randomise device --out benchmarks/cross_device/whole_device/current_fresh85",
     "whole_device_current_fresh88": "selfsense devices bench --n 3 --first-seed 88 --jobs 2 --protocol thesis "
                                     "--randomise device --out benchmarks/cross_device/whole_device/current_fresh88",
+    "whole_device_reversible_fresh91": "selfsense devices bench --n 3 --first-seed 91 --jobs 2 --protocol thesis "
+                                       "--randomise device --out "
+                                       "benchmarks/cross_device/whole_device/reversible_fresh91",
     "whole_device_rest_sign_fresh88": "selfsense devices bench --n 3 --first-seed 88 --jobs 2 --protocol thesis "
                                       "--randomise device --out benchmarks/cross_device/whole_device/rest_sign_fresh88 "
                                       "(made with benchmarks/cross_device/whole_device/rest_sign_fresh88/rule.diff "
@@ -550,6 +554,7 @@ WHOLE_ENVA82 = "benchmarks/cross_device/whole_device/envelope_after_fresh82"
 WHOLE_CUR85 = "benchmarks/cross_device/whole_device/current_fresh85"
 WHOLE_CUR88 = "benchmarks/cross_device/whole_device/current_fresh88"
 WHOLE_RSIGN88 = "benchmarks/cross_device/whole_device/rest_sign_fresh88"
+WHOLE_REV91 = "benchmarks/cross_device/whole_device/reversible_fresh91"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -808,27 +813,44 @@ def cross_device_figures() -> list[Fig]:
                                   COMMANDS["whole_device_envelope_after_fresh82"],
                                   DATES["whole_device_envelope_after_fresh82"], history=True)]
                if (ROOT / WHOLE_ENVA82 / "cross_device.csv").exists() else [])
-            # the current code (f64a0a5) on fresh seeds 85-87: its first contact, scored once as it came
+            # the code of f64a0a5 on fresh seeds 85-87: its first contact, scored once as it came
             + (_device_table_figures(f"{WHOLE_CUR85}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 85-87 (first contact "
-                                     "of the current code)",
-                                     COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"])
+                                     "of the code before the Preisach reversible part)",
+                                     COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"],
+                                     history=True)
                + [_worst_best_fig(f"{WHOLE_CUR85}/cross_device.csv", "whole-device randomisation, thesis "
-                                  "calibration, fresh seeds 85-87 (first contact of the current code), five families, "
-                                  "3 devices each",
-                                  COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"])]
+                                  "calibration, fresh seeds 85-87 (first contact of the code before the Preisach "
+                                  "reversible part), five families, 3 devices each",
+                                  COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"],
+                                  history=True)]
                if (ROOT / WHOLE_CUR85 / "cross_device.csv").exists() else [])
             # the same code on fresh seeds 88-90: its second first contact; then the rest segments' sign test of the
             # offset drift (a rule not in the code, docs/cross_device.md) on the same devices, its first contact
             + (_device_table_figures(f"{WHOLE_CUR88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90 (first contact "
-                                     "of the current code)",
-                                     COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"])
+                                     "of the code before the Preisach reversible part)",
+                                     COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"],
+                                     history=True)
                + [_worst_best_fig(f"{WHOLE_CUR88}/cross_device.csv", "whole-device randomisation, thesis "
-                                  "calibration, fresh seeds 88-90 (first contact of the current code), five families, "
-                                  "3 devices each",
-                                  COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"])]
+                                  "calibration, fresh seeds 88-90 (first contact of the code before the Preisach "
+                                  "reversible part), five families, 3 devices each",
+                                  COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"],
+                                  history=True)]
                if (ROOT / WHOLE_CUR88 / "cross_device.csv").exists() else [])
+            # the current code, with the Preisach reversible part (docs/method.md 6b), on fresh seeds 91-93: its
+            # first contact, scored once as it came
+            + (_device_table_figures(f"{WHOLE_REV91}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 91-93 (first contact "
+                                     "of the current code, with the Preisach reversible part)",
+                                     COMMANDS["whole_device_reversible_fresh91"],
+                                     DATES["whole_device_reversible_fresh91"])
+               + [_worst_best_fig(f"{WHOLE_REV91}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 91-93 (first contact of the current code, with the "
+                                  "Preisach reversible part), five families, 3 devices each",
+                                  COMMANDS["whole_device_reversible_fresh91"],
+                                  DATES["whole_device_reversible_fresh91"])]
+               if (ROOT / WHOLE_REV91 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
                                      "drift adopted from the rests' sign test (its first contact; rejected, not in the "

@@ -657,8 +657,8 @@ def test_hstream_rejects_unknown_model():
 
 
 def test_causal_offset_drift_member_streams_and_recovers_most_of_the_batch_gain(tmp_path):
-    """A Preisach device with a 10 uV/s in-amp offset drift, whose default model adopts the offset-drift member
-    (fitted over whole trials in batch). ``drift='causal'`` fits the same ramp on the rest segments seen so far: any
+    """A Preisach device with a 10 uV/s in-amp offset drift and the offset-drift member switched on (fitted over whole
+    trials in batch; the default calibration decides it beside the creep member and here drops it). ``drift='causal'`` fits the same ramp on the rest segments seen so far: any
     split into blocks gives the same bits, the fit is updated during the trial, and on the free-tip displacement
     validation trial the causal estimate recovers most of what the batch member gains over no drift compensation."""
     from selfsense.signals import prepare_trial
@@ -673,8 +673,8 @@ def test_causal_offset_drift_member_streams_and_recovers_most_of_the_batch_gain(
     rig = sio.load_rig(d)
     meta = sio.load_trials(d).set_index("trial")
     sigs = {t: prepare_trial(sio.trial_signals(d, t, rig=rig), rig) for t in meta.index}
-    est = SelfSensingEstimator(config=SensingConfig(), rig=rig).fit(sigs, meta)
-    assert est.offset_drift_, "the drifting device no longer adopts the offset-drift member"
+    est = SelfSensingEstimator(config=SensingConfig(), rig=rig, members={"offset_drift": "on"}).fit(sigs, meta)
+    assert est.offset_drift_, "the offset-drift member forced on is not carried"
     with pytest.raises(NotImplementedError, match="drift='causal'"):
         SelfSensingStream(est)
     none = SelfSensingEstimator.from_dict(est.to_dict(), est.rig)

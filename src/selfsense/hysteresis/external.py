@@ -204,10 +204,14 @@ def _fmt_pre(pre) -> str:
 
 
 def _nonneg_variants(cands) -> tuple:
-    """The non-negative-density twin of every PI and Preisach candidate (the monotone-branch prior)."""
+    """The non-negative-density twin of every PI and Preisach candidate (the monotone-branch prior). A Preisach
+    candidate with a reversible part (``n_rev``) has none: its ramps' weights are signed (they set the curvature of
+    a piecewise-linear function, not a density), so a bound on the grid's cells would not make it a non-negative
+    density, and it competes as the signed fit it is."""
     out = []
     for k, p in cands:
-        if k in ("pi", "preisach") and not p.get("nonneg") and (k, {**p, "nonneg": True}) not in cands:
+        if (k in ("pi", "preisach") and not p.get("nonneg") and not p.get("n_rev")
+                and (k, {**p, "nonneg": True}) not in cands):
             out.append((k, {**p, "nonneg": True}))
     return tuple(out)
 

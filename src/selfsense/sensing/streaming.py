@@ -354,7 +354,8 @@ def _gauged_pi(Q, PH, p, c, xl, out):
 @njit(cache=True)
 def _registry_h(Q, PR, Ms, ms, gs, Fc, zs, zc, out):
     """Link 2 for the registry's ``linear``, ``pi``, ``preisach`` (``LinearParamH.predict``: ``H = basis(u) w + a u
-    + sum_j w_j (u - z_j) + b``, the relaxation bank of Kuhnen's creep operator, eqs. 38-41) and ``duhem``
+    + sum_j w_j (u - z_j) + b``, the Preisach basis with its reversible ramps ``max(u - i / n_rev, 0)`` after the grid
+    and the plays, the relaxation bank of Kuhnen's creep operator, eqs. 38-41) and ``duhem``
     (``DuhemH.predict``: ``H = v[u] + sum_j w_j (u - z_j) + b + a u``), ``u = (Q - q_lo) / q_span``, on a block:
     the kernels of ``predict`` (``preisach_grid_kernel``, ``play_output_kernel``, ``relaxation_output_kernel``,
     ``duhem_run``) on the state arrays (updated in place: the Preisach grid's ``Ms``, ``ms``, ``gs``, ``Fc``; the

@@ -521,7 +521,12 @@ class PreisachH(LinearParamH):
     """Preisach operator with a density constant on the cells of an ``n_grid`` x ``n_grid`` triangular grid of the
     (alpha, beta) plane over the calibration charge range (Mayergoyz; ``_grid.preisach_grid_features``), signed
     cell weights, ridge-regularised: the general rate-independent model with wiping-out and congruent minor loops,
-    of which the PI operator is the special case of a density depending on alpha - beta only."""
+    of which the PI operator is the special case of a density depending on alpha - beta only. ``n_play``: plays near
+    the diagonal (:meth:`_basis`). ``n_rev``: the reversible part (Mayergoyz, ch. 1: a density on the line alpha =
+    beta is a function of the input alone), ramps ``max(u - i / n_rev, 0)`` of the normalised charge, i = 1 .. n_rev
+    - 1 (:func:`~selfsense.hysteresis.models._grid.reversible_features`), so that with the linear column the model
+    adds any continuous piecewise-linear function of the charge with those knots: a steep anhysteretic rise that the
+    cell grid resolves only at its cell size and with its cells' hysteresis (docs/method.md 6b)."""
 
     kind = "preisach"
 
