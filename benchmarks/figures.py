@@ -81,6 +81,7 @@ DATES = {
     "whole_device_current_fresh88": "2026-12-07",
     "whole_device_rest_sign_fresh88": "2026-12-07",
     "whole_device_reversible_fresh91": "2026-12-07",
+    "whole_device_before_reversible_fresh91": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -370,6 +371,10 @@ COMMANDS = {
                                     "--randomise device --out benchmarks/cross_device/whole_device/current_fresh85",
     "whole_device_current_fresh88": "selfsense devices bench --n 3 --first-seed 88 --jobs 2 --protocol thesis "
                                     "--randomise device --out benchmarks/cross_device/whole_device/current_fresh88",
+    "whole_device_before_reversible_fresh91": "selfsense devices bench --n 3 --first-seed 91 --jobs 2 --protocol "
+                                              "thesis --randomise device --out "
+                                              "benchmarks/cross_device/whole_device/before_reversible_fresh91 (made "
+                                              "with 88dade5, the code before the Preisach reversible part)",
     "whole_device_reversible_fresh91": "selfsense devices bench --n 3 --first-seed 91 --jobs 2 --protocol thesis "
                                        "--randomise device --out "
                                        "benchmarks/cross_device/whole_device/reversible_fresh91",
@@ -555,6 +560,7 @@ WHOLE_CUR85 = "benchmarks/cross_device/whole_device/current_fresh85"
 WHOLE_CUR88 = "benchmarks/cross_device/whole_device/current_fresh88"
 WHOLE_RSIGN88 = "benchmarks/cross_device/whole_device/rest_sign_fresh88"
 WHOLE_REV91 = "benchmarks/cross_device/whole_device/reversible_fresh91"
+WHOLE_REVB91 = "benchmarks/cross_device/whole_device/before_reversible_fresh91"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -839,7 +845,13 @@ def cross_device_figures() -> list[Fig]:
                                   history=True)]
                if (ROOT / WHOLE_CUR88 / "cross_device.csv").exists() else [])
             # the current code, with the Preisach reversible part (docs/method.md 6b), on fresh seeds 91-93: its
-            # first contact, scored once as it came
+            # first contact, scored once as it came; beside it the code before it on the same devices
+            + (_device_table_figures(f"{WHOLE_REVB91}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 91-93, the code "
+                                     "before the Preisach reversible part",
+                                     COMMANDS["whole_device_before_reversible_fresh91"],
+                                     DATES["whole_device_before_reversible_fresh91"], history=True)
+               if (ROOT / WHOLE_REVB91 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_REV91}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 91-93 (first contact "
                                      "of the current code, with the Preisach reversible part)",
