@@ -85,12 +85,9 @@ def test_preisach_grid_features_match_a_brute_force_relay_grid():
     assert np.all((F >= 0) & (F <= 1))
 
 
-def test_preisach_recovers_its_own_density_out_of_sample():
-    """Weights of a grid Preisach truth are recovered; prediction on another drive matches to 1e-6 of the range."""
-    rng = np.random.default_rng(3)
-    n = 6
-    w = rng.uniform(-1, 2, n * (n + 1) // 2)
-    # first-order reversal curves visit every cell (identification drive); the test drive is another path
+def _forc_drives(n: int):
+    """An identification drive whose first-order reversal curves visit every cell of an ``n`` x ``n`` grid, and a
+    test drive on another path inside the identified range."""
     knots = [0.0]
     for i in range(1, n + 1):
         for j in range(i):
@@ -98,7 +95,15 @@ def test_preisach_recovers_its_own_density_out_of_sample():
     knots += [0.0]
     q1 = QREF * np.concatenate([np.linspace(a, b, 40, endpoint=False) for a, b in zip(knots[:-1], knots[1:])])
     q2 = _drive(seed=2)
-    q2 = q2 * 0.9 * q1.max() / q2.max()     # inside the identified range
+    return q1, q2 * 0.9 * q1.max() / q2.max()
+
+
+def test_preisach_recovers_its_own_density_out_of_sample():
+    """Weights of a grid Preisach truth are recovered; prediction on another drive matches to 1e-6 of the range."""
+    rng = np.random.default_rng(3)
+    n = 6
+    w = rng.uniform(-1, 2, n * (n + 1) // 2)
+    q1, q2 = _forc_drives(n)
     m = PreisachH(n_grid=n, ridge=0.0, creep=False).fit(q1, np.zeros_like(q1), DT)   # sets the normalisation
     y1 = preisach_grid_features(m._u(q1), 0.0, 1.0, n) @ w + 30.0 * m._u(q1)
     y2 = preisach_grid_features(m._u(q2), 0.0, 1.0, n) @ w + 30.0 * m._u(q2)
@@ -115,14 +120,7 @@ def test_preisach_reversible_part_recovers_a_steep_anhysteretic_curve_out_of_sam
     rng = np.random.default_rng(4)
     n, nr = 6, 24
     w = rng.uniform(-1, 2, n * (n + 1) // 2)
-    knots = [0.0]
-    for i in range(1, n + 1):
-        for j in range(i):
-            knots += [(i - 0.05) / n, (j + 0.5) / n]
-    knots += [0.0]
-    q1 = QREF * np.concatenate([np.linspace(a, b, 40, endpoint=False) for a, b in zip(knots[:-1], knots[1:])])
-    q2 = _drive(seed=2)
-    q2 = q2 * 0.9 * q1.max() / q2.max()
+    q1, q2 = _forc_drives(n)
     m = PreisachH(n_grid=n, ridge=0.0, creep=False).fit(q1, np.zeros_like(q1), DT)   # sets the normalisation
     k = np.arange(1, nr) / nr
     wr = np.zeros(nr - 1)
