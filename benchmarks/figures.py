@@ -82,6 +82,7 @@ DATES = {
     "whole_device_rest_sign_fresh88": "2026-12-07",
     "whole_device_reversible_fresh91": "2026-12-07",
     "whole_device_before_reversible_fresh91": "2026-12-07",
+    "whole_device_reversible_fresh94": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -375,6 +376,9 @@ COMMANDS = {
                                               "thesis --randomise device --out "
                                               "benchmarks/cross_device/whole_device/before_reversible_fresh91 (made "
                                               "with 88dade5, the code before the Preisach reversible part)",
+    "whole_device_reversible_fresh94": "selfsense devices bench --n 3 --first-seed 94 --jobs 2 --protocol thesis "
+                                       "--randomise device --out "
+                                       "benchmarks/cross_device/whole_device/reversible_fresh94",
     "whole_device_reversible_fresh91": "selfsense devices bench --n 3 --first-seed 91 --jobs 2 --protocol thesis "
                                        "--randomise device --out "
                                        "benchmarks/cross_device/whole_device/reversible_fresh91",
@@ -561,6 +565,7 @@ WHOLE_CUR88 = "benchmarks/cross_device/whole_device/current_fresh88"
 WHOLE_RSIGN88 = "benchmarks/cross_device/whole_device/rest_sign_fresh88"
 WHOLE_REV91 = "benchmarks/cross_device/whole_device/reversible_fresh91"
 WHOLE_REVB91 = "benchmarks/cross_device/whole_device/before_reversible_fresh91"
+WHOLE_REV94 = "benchmarks/cross_device/whole_device/reversible_fresh94"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -863,6 +868,18 @@ def cross_device_figures() -> list[Fig]:
                                   COMMANDS["whole_device_reversible_fresh91"],
                                   DATES["whole_device_reversible_fresh91"])]
                if (ROOT / WHOLE_REV91 / "cross_device.csv").exists() else [])
+            # the same code on fresh seeds 94-96: its second first contact
+            + (_device_table_figures(f"{WHOLE_REV94}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, fresh seeds 94-96 (first contact "
+                                     "of the current code, its second)",
+                                     COMMANDS["whole_device_reversible_fresh94"],
+                                     DATES["whole_device_reversible_fresh94"])
+               + [_worst_best_fig(f"{WHOLE_REV94}/cross_device.csv", "whole-device randomisation, thesis "
+                                  "calibration, fresh seeds 94-96 (first contact of the current code, its second), "
+                                  "five families, 3 devices each",
+                                  COMMANDS["whole_device_reversible_fresh94"],
+                                  DATES["whole_device_reversible_fresh94"])]
+               if (ROOT / WHOLE_REV94 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
                                      "drift adopted from the rests' sign test (its first contact; rejected, not in the "
