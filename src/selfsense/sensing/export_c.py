@@ -72,7 +72,7 @@ def _h_spec(h, dt: float) -> dict:
         ntau = len(h.creep_tau_s) if h.creep and h.creep_tau_s else 0
         spec = {"H": "LP", "q_lo": h.q_lo_, "q_span": h.q_span_, "lin": c[nb], "const": c[-1],
                 "relax_g": [-math.expm1(-dt / float(t)) for t in (h.creep_tau_s if ntau else ())],
-                "relax_w": list(c[nb + 1:nb + 1 + ntau]), "basis": "none", "play_r": [], "play_w": [], "rev_w": [],
+                "relax_w": list(c[nb + 1:nb + 1 + ntau]), "basis": "none", "play_r": [], "play_w": [], "rev_k": [], "rev_w": [],
                 "grid_n": 0,
                 "grid_w": [], "ri_b": [], "ri_p": [], "ri_scale": 1.0, "ri_depth": 1024}
         w = c[:nb]
@@ -82,7 +82,7 @@ def _h_spec(h, dt: float) -> dict:
             nc = h.n_grid * (h.n_grid + 1) // 2
             spec.update(basis="preisach", grid_n=h.n_grid, grid_w=w[:nc],
                         play_r=np.arange(1, h.n_play + 1) / h.n_play * 0.5 if h.n_play else [],
-                        play_w=w[nc:nc + h.n_play], rev_w=w[nc + h.n_play:])
+                        play_w=w[nc:nc + h.n_play], rev_k=h._rev_knots(), rev_w=w[nc + h.n_play:])
         elif kind == "ri":
             from selfsense.hysteresis.ri import diagonal_constraint_basis
 
@@ -611,7 +611,7 @@ def c_sources(est, rig, dt: float, name: str = "selfsense_estimator", model_labe
         nr = len(h.get("rev_w", []))
         if nr:   # the Preisach model's reversible part: ramps at the knots i / n_rev (no state)
             sizes.append(f"#define N_REV {nr}")
-            src.append(_table("REV_K", np.arange(1, nr + 1) / (nr + 1)) + _table("REV_W", h["rev_w"]))
+            src.append(_table("REV_K", h["rev_k"]) + _table("REV_W", h["rev_w"]))
             parts.append(_REV)
         basis = {"none": "0.0", "play": "play_step(s, u)",
                  "preisach": "gy" + (" + play_step(s, u)" if np_ else "") + (" + rev_sum(u)" if nr else ""),
