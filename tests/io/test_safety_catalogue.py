@@ -67,6 +67,17 @@ def _noise(col, sd=1e-3):
     return f
 
 
+def _weak(col, snr):
+    """The channel's signal kept, scaled down to ``snr`` times white noise of unit sd (robust 0.5-99.5 % range):
+    a live sensor of poor resolution, not a disconnected one."""
+    def f(df):
+        x = df[col].to_numpy()
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        sig = (x - np.median(x)) * (snr / (hi - lo))
+        return df.assign(**{col: 1e-3 * (sig + np.random.default_rng(5).standard_normal(len(df)))})
+    return f
+
+
 def _tiny(n_short, n_rel):
     """A trial of ``n_short`` shorted and ``n_rel`` connected samples (driven), on a continuous time base."""
     def f(df):
@@ -111,6 +122,9 @@ PLAUSIBILITY = [
      "free_sine.parquet", "laser", None, "laser_m_per_v wrong?", "error"),
     ("blocked-load-cell-flat", mod_log("blocked_sine.csv", _noise("load_cell")),
      "blocked_sine.csv", "load_cell", None, "a blocked tip presses the load cell", "error"),
+    # a weak but live load cell (range ~14 x noise) is a warning; noise alone (about 5 x) stays an error above
+    ("blocked-load-cell-weak", mod_log("blocked_sine.csv", _weak("load_cell", 14.0)),
+     "blocked_sine.csv", "load_cell", None, "a weak reference", "warning"),
     ("object-never-reached", mod_log("obj_mixed.parquet", _noise("load_cell")),
      "obj_mixed.parquet", "load_cell", None, "the tip reaches the object", "warning"),
     ("three-sample-trial", mod_log("free_sine.parquet", _tiny(1, 2)),
@@ -135,6 +149,20 @@ def test_plausibility(dataset, case):
             load_dataset(dataset)
     else:
         assert not errors and load_dataset(dataset)
+
+
+def test_reference_snr_limits_are_ordered_and_noise_alone_fails():
+    """The weak-reference warning sits above the error limit (a rig that swaps them is refused by name), and white
+    noise alone (a disconnected sensor) reads about 5 x its noise: below the error limit with margin."""
+    from selfsense.io.plausibility import DEFAULTS, _noise_sigma, _robust_range, check_plausibility_keys
+
+    assert DEFAULTS["min_reference_snr"] < DEFAULTS["warn_reference_snr"]
+    _, probs = check_plausibility_keys({"min_reference_snr": 30.0})
+    assert [p.field for p in probs] == ["plausibility.min_reference_snr"]
+    x = np.random.default_rng(0).standard_normal(20_000)
+    snr = _robust_range(x) / _noise_sigma(x)
+    assert 4.5 < snr < 6.0
+    assert snr < DEFAULTS["min_reference_snr"] / 1.5
 
 
 def test_pristine_has_no_plausibility_findings(dataset):

@@ -49,7 +49,9 @@ DEFAULTS: dict[str, float] = {
     "charge_ratio_warn_min": 0.5,    # outside [warn_min, warn_max]: warning
     "charge_ratio_warn_max": 2.0,
     "min_charge_correlation": 0.8,   # corr(q, V) over the connected samples below: error (noise-only shunt)
-    "min_reference_snr": 20.0,       # robust range / noise of the reference channel below: error (flat sensor)
+    "min_reference_snr": 10.0,       # robust range / noise of the reference channel below: error (flat sensor;
+                                     # noise alone reads about 5.2: the 0.5-99.5 % range of a Gaussian)
+    "warn_reference_snr": 20.0,      # below (and above the error limit): warning (a live but weak reference)
     "free_displacement_ratio_min": 0.1,   # free tip: ptp(dx_ref) / (tip_free_displacement * ptp(V) / V_max)
     "free_displacement_ratio_max": 10.0,
     "flat_top_fraction": 0.002,      # share of samples exactly at the max (or min) value above: clipping
@@ -65,7 +67,8 @@ DOCS: dict[str, str] = {
     "charge_ratio_warn_min": "the same ratio below this: warning",
     "charge_ratio_warn_max": "the same ratio above this: warning",
     "min_charge_correlation": "minimum correlation of q with V over the connected samples",
-    "min_reference_snr": "minimum robust range / noise of the reference channel where it must move",
+    "min_reference_snr": "minimum robust range / noise of the reference channel where it must move (error below)",
+    "warn_reference_snr": "robust range / noise of the same channel below which a warning says the reference is weak",
     "free_displacement_ratio_min": "free tip: minimum ptp(dx_ref) / (tip_free_displacement_m * ptp(V) / max_voltage_v)",
     "free_displacement_ratio_max": "free tip: maximum of the same ratio",
     "flat_top_fraction": "share of samples exactly at a channel's max or min above which it is clipped",
@@ -101,7 +104,8 @@ def check_plausibility_keys(d: Any, file: str = "rig.yaml") -> tuple[dict[str, f
             continue
         lim[k] = int(v) if k in _INT_KEYS else float(v)
     for lo, hi in (("charge_ratio_min", "charge_ratio_max"), ("charge_ratio_warn_min", "charge_ratio_warn_max"),
-                   ("free_displacement_ratio_min", "free_displacement_ratio_max")):
+                   ("free_displacement_ratio_min", "free_displacement_ratio_max"),
+                   ("min_reference_snr", "warn_reference_snr")):
         if lim[lo] > lim[hi]:
             probs.append(Problem(file, f"plausibility.{lo}", None, f"a value <= plausibility.{hi} = {lim[hi]:g}",
                                  lim[lo]))
@@ -268,14 +272,22 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
                 (warn if tip == "object" else err)(ref_col, None, f"an active reference channel ({what}; trials.csv tip = {tip!r}, reference = "
                     f"{ref!r}): robust range >= {lim['min_reference_snr']:g} x noise (wrong tip condition or "
                     "sensor not connected?)", f"range {rr:.3g} V = {snr:.3g} x noise")
-            elif tip == "free" and ptp_V > 0:
-                dx = 2.0 * abs(rig.reference.laser_m_per_v) * rr
-                expect = rig.tip_free_displacement_m * ptp_V / rig.actuator_catalog.max_voltage_v
-                r = dx / expect
-                metrics["free_displacement_ratio"] = r
-                if not (lim["free_displacement_ratio_min"] <= r <= lim["free_displacement_ratio_max"]):
-                    err(ref_col, None, "a free-tip displacement of the size tip_free_displacement_m * V / "
-                        f"max_voltage_v gives, ratio in [{lim['free_displacement_ratio_min']:g}, "
-                        f"{lim['free_displacement_ratio_max']:g}] (tip blocked, or laser_m_per_v wrong?)",
-                        f"ratio {r:.3g} ({dx:.3g} m for {expect:.3g} m expected)")
+            else:
+                if snr < lim["warn_reference_snr"]:
+                    # a sensor that moves, but little above its noise: the references it gives are scored (and the
+                    # calibration regressed) with that noise; a weak sensor is not a broken one (noise alone reads
+                    # about 5 x), so the dataset is not refused
+                    warn(ref_col, None, f"a reference channel well above its noise ({what}): robust range >= "
+                         f"{lim['warn_reference_snr']:g} x noise (a weak reference: its noise enters the calibration "
+                         "and the error tables)", f"range {rr:.3g} V = {snr:.3g} x noise")
+                if tip == "free" and ptp_V > 0:
+                    dx = 2.0 * abs(rig.reference.laser_m_per_v) * rr
+                    expect = rig.tip_free_displacement_m * ptp_V / rig.actuator_catalog.max_voltage_v
+                    r = dx / expect
+                    metrics["free_displacement_ratio"] = r
+                    if not (lim["free_displacement_ratio_min"] <= r <= lim["free_displacement_ratio_max"]):
+                        err(ref_col, None, "a free-tip displacement of the size tip_free_displacement_m * V / "
+                            f"max_voltage_v gives, ratio in [{lim['free_displacement_ratio_min']:g}, "
+                            f"{lim['free_displacement_ratio_max']:g}] (tip blocked, or laser_m_per_v wrong?)",
+                            f"ratio {r:.3g} ({dx:.3g} m for {expect:.3g} m expected)")
     return out
