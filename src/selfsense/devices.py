@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -36,10 +36,12 @@ PROTOCOLS = ("thesis", "three_trial")
 
 
 def device_scenario(family: str, preset: str, seed: int, protocol: str = "three_trial",
-                    randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None) -> dict:
+                    randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None,
+                    without: Sequence[str] = ()) -> dict:
     """The scenario of one virtual device of the benchmark (:func:`selfsense.sim.families.draw_device`), with the
     ``device_overrides`` set after the draw and, on the ``thesis`` protocol, without the free-tip mixed calibration
-    trial."""
+    trial. ``without``: effects of the draw set to zero after it (the effect-free twin: the same device, drives and
+    noise, the effect removed; a name that is no effect of the simulator is refused)."""
     from selfsense.sim.families import draw_device
 
     if protocol not in PROTOCOLS:
@@ -50,9 +52,22 @@ def device_scenario(family: str, preset: str, seed: int, protocol: str = "three_
         raise ValueError(f"device_overrides: unknown device quantities {unknown}; expected some of "
                          f"{sorted(sc['device'])}")
     sc["device"].update(dict(device_overrides or {}))
+    check_without(without)
+    for k in without:   # an effect the draw does not have (e.g. leakage on the clean preset) is already zero
+        if k in sc["effects"]:
+            sc["effects"][k] = 0.0
     if protocol == "thesis":
         sc["trials"] = [t for t in sc["trials"] if not (t["role"] == "calibration" and t.get("signal") == "mixed")]
     return sc
+
+
+def check_without(without: Sequence[str]) -> None:
+    """Refuse a name of ``without`` that is no effect of the simulator (:data:`selfsense.sim.effects.EFFECTS`)."""
+    from selfsense.sim.effects import EFFECTS
+
+    unknown = sorted(set(without) - set(EFFECTS))
+    if unknown:
+        raise ValueError(f"without: unknown effects {unknown}; expected some of {', '.join(EFFECTS)}")
 
 
 def simulate_device(sc: Mapping[str, Any], with_truth: bool = False) -> tuple[dict, pd.DataFrame, Any, dict | None]:
@@ -76,13 +91,15 @@ def simulate_device(sc: Mapping[str, Any], with_truth: bool = False) -> tuple[di
 
 def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | None = None,
                protocol: str = "three_trial", randomise: str = "hysteresis",
-               device_overrides: Mapping[str, Any] | None = None, members: Mapping[str, str] | None = None) -> dict:
+               device_overrides: Mapping[str, Any] | None = None, members: Mapping[str, str] | None = None,
+               without: Sequence[str] = ()) -> dict:
     """Simulate one virtual device and score the pipeline's estimator on it (Table 3, validation trials; the
     mixed-drive validation trials also on their own). ``device_overrides``: device quantities set after the draw
     (e.g. ``{"adc_bits": 18}``: the same device, drive and noise with a finer ADC), recorded as ``override_<name>``.
     ``members``: chain members forced on or off (``SelfSensingEstimator(members=...)``, e.g.
     ``{"offset_drift": "on"}``: what a member would give where the calibration's gate does not adopt it), recorded
-    as ``member_<name>``. The record also says which charge-link members the fit carries (``offset_drift``,
+    as ``member_<name>``. ``without``: effects of the draw removed (:func:`device_scenario`; the effect-free twin that
+    measures an effect's cost), recorded as ``without``. The record also says which charge-link members the fit carries (``offset_drift``,
     ``leakage_ns``)."""
     from selfsense import io as sio
     from selfsense.report import tables
@@ -92,14 +109,16 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense.sensing.estimator import member_modes
 
     member_modes(members)   # an unknown member or mode is refused here, not recorded as a failed calibration
+    check_without(without)
     cfg = dict(config or _default_pipeline_config())
-    sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides)
+    sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides, tuple(without))
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,
                            "randomise": randomise, **{f"device_{k}": v for k, v in sc.get("randomise", {}).items()},
                            "n_actuators": sc["device"]["n_actuators"], "h_sign": sc["device"]["h_sign"],
                            "preload": sc["effects"].get("preload", 0.0),
                            **{f"override_{k}": v for k, v in (device_overrides or {}).items()},
-                           **{f"member_{k}": str(v) for k, v in (members or {}).items()}}
+                           **{f"member_{k}": str(v) for k, v in (members or {}).items()},
+                           **({"without": ",".join(sorted(without))} if without else {})}
     try:
         sigs, meta, rig, _ = simulate_device(sc)
     except sio.ContractError as exc:  # the generator made a dataset the contract rejects: a benchmark failure
@@ -224,8 +243,8 @@ def _config_from(path: str | None) -> dict:
 
 
 def _job(args):
-    family, preset, seed, cfg, out, protocol, randomise, overrides, members = args
-    rec = run_device(family, preset, seed, cfg, protocol, randomise, overrides, members)
+    family, preset, seed, cfg, out, protocol, randomise, overrides, members, without = args
+    rec = run_device(family, preset, seed, cfg, protocol, randomise, overrides, members, without)
     write_record(rec, out)
     return rec
 
@@ -233,17 +252,19 @@ def _job(args):
 def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Mapping[str, Any] | None = None,
           first_seed: int = 0, progress: bool = True, protocol: str = "three_trial",
           randomise: str = "hysteresis", device_overrides: Mapping[str, Any] | None = None,
-          members: Mapping[str, str] | None = None) -> pd.DataFrame:
+          members: Mapping[str, str] | None = None, without: Sequence[str] = ()) -> pd.DataFrame:
     """Run ``n`` devices per family and preset (seeds first_seed..first_seed+n-1), ``jobs`` in parallel, one record
     file per device under ``out_dir/records`` (existing records are reused: resumable), then write
-    ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``. ``device_overrides`` and ``members``: as
-    :func:`run_device`, the same for every device."""
+    ``cross_device.csv`` / ``cross_device.md`` / ``records.csv``. ``device_overrides``, ``members`` and ``without``:
+    as :func:`run_device`, the same for every device (``without``: every effect named must be in every device's
+    draw, e.g. the drift preset's leakage, offset_drift and creep)."""
     import os
     from concurrent.futures import ProcessPoolExecutor
 
     from selfsense.sensing.estimator import member_modes
 
     member_modes(members)   # before any device starts
+    check_without(without)
     out_dir = Path(out_dir)
     rec_dir = out_dir / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
@@ -262,6 +283,10 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
                     if forced != {k: str(v) for k, v in (members or {}).items()}:
                         raise ValueError(f"{p}: a record with members forced {forced}; this run asks for "
                                          f"{dict(members or {})}: use another --out folder")
+                    if rec.get("without", "") != ",".join(sorted(without)):
+                        raise ValueError(f"{p}: a record without the effects {rec.get('without', '') or 'none'!r}; "
+                                         f"this run asks without {','.join(sorted(without)) or 'none'!r}: use "
+                                         "another --out folder")
                     if (rec.get("protocol", "three_trial"), rec.get("randomise", "hysteresis")) != (protocol, randomise):
                         raise ValueError(f"{p}: a record of protocol {rec.get('protocol', 'three_trial')!r}, "
                                          f"randomisation {rec.get('randomise', 'hysteresis')!r}; this run asks for "
@@ -269,7 +294,7 @@ def bench(n: int, families, presets, jobs: int, out_dir: str | Path, config: Map
                     recs.append(rec)
                 else:
                     todo.append((fam, pre, seed, config, str(p), protocol, randomise, dict(device_overrides or {}),
-                                 dict(members or {})))
+                                 dict(members or {}), tuple(without)))
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from tqdm import tqdm

@@ -247,3 +247,40 @@ def test_an_invalid_simulated_dataset_is_recorded_with_its_problems(monkeypatch)
     assert rec["status"] == "invalid_dataset" and np.isnan(rec["displacement_pct"])
     assert "cal_free_sine.parquet" in rec["error"] and "v_shunt" in rec["error"] and "row 1706" in rec["error"]
     assert "/tmp" not in rec["error"]
+
+
+def test_effect_free_twin_removes_only_the_named_effect(tmp_path):
+    """``selfsense devices bench --without EFFECT`` (device_scenario's ``without``): the twin is the same device, drives
+    and draw with the named effect set to zero and every other effect kept, so that the pair measures that effect's
+    cost; a name that is no simulator effect is refused before anything is simulated, and a resumed folder made
+    without other effects is refused."""
+    import json
+
+    from selfsense.cli.devices import main
+    from selfsense.devices import bench, device_scenario, run_device
+
+    base = device_scenario("gpi", "drift", 3, "thesis", "device")
+    twin = device_scenario("gpi", "drift", 3, "thesis", "device", without=("offset_drift",))
+    assert base["effects"]["offset_drift"] > 0 and twin["effects"]["offset_drift"] == 0.0
+    assert {k: v for k, v in twin["effects"].items() if k != "offset_drift"} == \
+        {k: v for k, v in base["effects"].items() if k != "offset_drift"}
+    assert twin["device"] == base["device"] and twin["trials"] == base["trials"]
+    # the clean preset has no leakage: its twin without it is the device itself
+    clean = device_scenario("gpi", "clean", 3, "thesis", "device", without=("leakage",))
+    assert clean == device_scenario("gpi", "clean", 3, "thesis", "device")
+    with pytest.raises(ValueError, match=r"without: unknown effects \['ofset_drift'\]"):
+        run_device("gpi", "drift", 3, without=("ofset_drift",))
+    assert main(["bench", "--n", "1", "--families", "gpi", "--presets", "drift", "--without", "drift",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()
+    rec_dir = tmp_path / "b" / "records"
+    rec_dir.mkdir(parents=True)
+    (rec_dir / "gpi_drift_0.json").write_text(json.dumps(
+        {"family": "gpi", "preset": "drift", "seed": 0, "protocol": "thesis", "randomise": "device",
+         "without": "leakage", "status": "ok", "displacement_pct": 1.0, "force_pct": 1.0}))
+    with pytest.raises(ValueError, match="without the effects 'leakage'"):
+        bench(1, ["gpi"], ["drift"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
+              without=("offset_drift",))
+    out = bench(1, ["gpi"], ["drift"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
+                without=("leakage",))   # resumed: nothing simulated
+    assert out.loc[0, "displacement_median_pct"] == pytest.approx(1.0)

@@ -65,6 +65,9 @@ def main(argv=None) -> int:
                    help="device quantity set after the draw, e.g. --set adc_bits=18; repeatable")
     r.add_argument("--member", action="append", default=[], metavar="NAME=on|off",
                    help="a chain member of the estimator forced on or off, e.g. --member offset_drift=on; repeatable")
+    r.add_argument("--without", action="append", default=[], metavar="EFFECT",
+                   help="an effect of the draw removed (the effect-free twin: the same device, drives and noise), e.g. "
+                        "--without offset_drift; repeatable")
     r.add_argument("--out", required=True, help="record file (JSON) to write")
     t = sub.add_parser("table", help="aggregate record files into the cross-device table", allow_abbrev=False)
     t.add_argument("records", nargs="+", help="record JSON files")
@@ -88,12 +91,15 @@ def main(argv=None) -> int:
     b.add_argument("--member", action="append", default=[], metavar="NAME=on|off",
                    help="a chain member of the estimator forced on or off on every device, e.g. --member "
                         "offset_drift=on; repeatable")
+    b.add_argument("--without", action="append", default=[], metavar="EFFECT",
+                   help="an effect removed from every device's draw (effect-free twins: each effect's cost is the "
+                        "run's Table 3 against one without the option), e.g. --without offset_drift; repeatable")
     b.add_argument("--out", required=True, help="output folder (records/ and the tables)")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "run":
             rec = run_device(a.family, a.preset, a.seed, _config_from(a.configfile), a.protocol, a.randomise,
-                             _overrides(a.set), _members(a.member))
+                             _overrides(a.set), _members(a.member), a.without)
             write_record(rec, a.out)
             print(f"{a.family} {a.preset} {a.seed}: displacement {rec['displacement_pct']:.2f} %, "
                   f"force {rec['force_pct']:.2f} % ({rec['status']})")
@@ -111,7 +117,8 @@ def main(argv=None) -> int:
                 if p not in PRESETS:
                     raise ValueError(f"--presets: unknown preset {p!r}; expected some of {', '.join(PRESETS)}")
             bench(a.n, fams, pres, a.jobs, a.out, _config_from(a.configfile), a.first_seed, protocol=a.protocol,
-                  randomise=a.randomise, device_overrides=_overrides(a.set), members=_members(a.member))
+                  randomise=a.randomise, device_overrides=_overrides(a.set), members=_members(a.member),
+                  without=a.without)
             print(Path(a.out) / "cross_device.md")
     except (ValueError, OSError) as exc:
         print(f"selfsense devices: error: {exc}", file=sys.stderr)
