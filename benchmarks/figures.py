@@ -83,6 +83,9 @@ DATES = {
     "whole_device_reversible_fresh91": "2026-12-07",
     "whole_device_before_reversible_fresh91": "2026-12-07",
     "whole_device_reversible_fresh94": "2026-12-07",
+    "whole_device_without_offset_drift_fresh91": "2026-12-07",
+    "whole_device_without_leakage_fresh91": "2026-12-07",
+    "whole_device_weak_reference_fresh94": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -379,6 +382,16 @@ COMMANDS = {
     "whole_device_reversible_fresh94": "selfsense devices bench --n 3 --first-seed 94 --jobs 2 --protocol thesis "
                                        "--randomise device --out "
                                        "benchmarks/cross_device/whole_device/reversible_fresh94",
+    "whole_device_without_offset_drift_fresh91": "selfsense devices bench --n 3 --first-seed 91 --presets drift --jobs 2 "
+                                                 "--protocol thesis --randomise device --without offset_drift --out "
+                                                 "benchmarks/cross_device/whole_device/without_offset_drift_fresh91",
+    "whole_device_without_leakage_fresh91": "selfsense devices bench --n 3 --first-seed 91 --presets drift --jobs 2 "
+                                            "--protocol thesis --randomise device --without leakage --out "
+                                            "benchmarks/cross_device/whole_device/without_leakage_fresh91",
+    "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
+                                           "--protocol thesis --randomise device --out benchmarks/cross_device/"
+                                           "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
+                                           "(PRESET clean and drift), then selfsense devices table on the two records",
     "whole_device_reversible_fresh91": "selfsense devices bench --n 3 --first-seed 91 --jobs 2 --protocol thesis "
                                        "--randomise device --out "
                                        "benchmarks/cross_device/whole_device/reversible_fresh91",
@@ -566,6 +579,9 @@ WHOLE_RSIGN88 = "benchmarks/cross_device/whole_device/rest_sign_fresh88"
 WHOLE_REV91 = "benchmarks/cross_device/whole_device/reversible_fresh91"
 WHOLE_REVB91 = "benchmarks/cross_device/whole_device/before_reversible_fresh91"
 WHOLE_REV94 = "benchmarks/cross_device/whole_device/reversible_fresh94"
+WHOLE_WOOD91 = "benchmarks/cross_device/whole_device/without_offset_drift_fresh91"
+WHOLE_WOLEAK91 = "benchmarks/cross_device/whole_device/without_leakage_fresh91"
+WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -880,6 +896,26 @@ def cross_device_figures() -> list[Fig]:
                                   COMMANDS["whole_device_reversible_fresh94"],
                                   DATES["whole_device_reversible_fresh94"])]
                if (ROOT / WHOLE_REV94 / "cross_device.csv").exists() else [])
+            # the device that failed the contract at 19.1x its noise, scored once the weak reference is a warning
+            + (_device_table_figures(f"{WHOLE_WEAK94}/cross_device.csv",
+                                     "whole-device randomisation, thesis calibration, rate-dependent KP seed 96 (the "
+                                     "device of seeds 94-96 that failed the data contract, scored once a weak "
+                                     "reference is a warning)", COMMANDS["whole_device_weak_reference_fresh94"],
+                                     DATES["whole_device_weak_reference_fresh94"])
+               if (ROOT / WHOLE_WEAK94 / "cross_device.csv").exists() else [])
+            # effect-free twins of the drift preset: what one effect costs (a diagnosis, not a score of the benchmark)
+            + (_device_table_figures(f"{WHOLE_WOOD91}/cross_device.csv",
+                                     "the drift devices of seeds 91-93 without their offset drift (effect-free twins; "
+                                     "diagnosis: what the offset drift costs)",
+                                     COMMANDS["whole_device_without_offset_drift_fresh91"],
+                                     DATES["whole_device_without_offset_drift_fresh91"])
+               if (ROOT / WHOLE_WOOD91 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_WOLEAK91}/cross_device.csv",
+                                     "the drift devices of seeds 91-93 without their leakage (effect-free twins; "
+                                     "diagnosis: what the leakage costs)",
+                                     COMMANDS["whole_device_without_leakage_fresh91"],
+                                     DATES["whole_device_without_leakage_fresh91"])
+               if (ROOT / WHOLE_WOLEAK91 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
                                      "drift adopted from the rests' sign test (its first contact; rejected, not in the "
