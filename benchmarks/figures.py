@@ -85,6 +85,7 @@ DATES = {
     "whole_device_reversible_fresh94": "2026-12-07",
     "whole_device_without_offset_drift_fresh91": "2026-12-07",
     "whole_device_without_leakage_fresh91": "2026-12-07",
+    "whole_device_without_creep_fresh91": "2026-12-07",
     "whole_device_weak_reference_fresh94": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
@@ -388,6 +389,9 @@ COMMANDS = {
     "whole_device_without_leakage_fresh91": "selfsense devices bench --n 3 --first-seed 91 --presets drift --jobs 2 "
                                             "--protocol thesis --randomise device --without leakage --out "
                                             "benchmarks/cross_device/whole_device/without_leakage_fresh91",
+    "whole_device_without_creep_fresh91": "selfsense devices bench --n 3 --first-seed 91 --presets drift --jobs 2 "
+                                          "--protocol thesis --randomise device --without creep --out "
+                                          "benchmarks/cross_device/whole_device/without_creep_fresh91",
     "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
                                            "--protocol thesis --randomise device --out benchmarks/cross_device/"
                                            "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
@@ -581,6 +585,7 @@ WHOLE_REVB91 = "benchmarks/cross_device/whole_device/before_reversible_fresh91"
 WHOLE_REV94 = "benchmarks/cross_device/whole_device/reversible_fresh94"
 WHOLE_WOOD91 = "benchmarks/cross_device/whole_device/without_offset_drift_fresh91"
 WHOLE_WOLEAK91 = "benchmarks/cross_device/whole_device/without_leakage_fresh91"
+WHOLE_WOCREEP91 = "benchmarks/cross_device/whole_device/without_creep_fresh91"
 WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
@@ -916,6 +921,12 @@ def cross_device_figures() -> list[Fig]:
                                      COMMANDS["whole_device_without_leakage_fresh91"],
                                      DATES["whole_device_without_leakage_fresh91"])
                if (ROOT / WHOLE_WOLEAK91 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_WOCREEP91}/cross_device.csv",
+                                     "the drift devices of seeds 91-93 without their mechanical creep (effect-free "
+                                     "twins; diagnosis: what the creep costs)",
+                                     COMMANDS["whole_device_without_creep_fresh91"],
+                                     DATES["whole_device_without_creep_fresh91"])
+               if (ROOT / WHOLE_WOCREEP91 / "cross_device.csv").exists() else [])
             + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
                                      "drift adopted from the rests' sign test (its first contact; rejected, not in the "
