@@ -46,13 +46,13 @@ def device_scenario(family: str, preset: str, seed: int, protocol: str = "three_
 
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, found {protocol!r}")
+    check_without(without)   # before the draw, which simulates the free stroke
     sc = draw_device(family, seed, preset, randomise=randomise)
     unknown = sorted(set(device_overrides or {}) - set(sc["device"]))
     if unknown:
         raise ValueError(f"device_overrides: unknown device quantities {unknown}; expected some of "
                          f"{sorted(sc['device'])}")
     sc["device"].update(dict(device_overrides or {}))
-    check_without(without)
     for k in without:   # an effect the draw does not have (e.g. leakage on the clean preset) is already zero
         if k in sc["effects"]:
             sc["effects"][k] = 0.0
@@ -109,7 +109,6 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     from selfsense.sensing.estimator import member_modes
 
     member_modes(members)   # an unknown member or mode is refused here, not recorded as a failed calibration
-    check_without(without)
     cfg = dict(config or _default_pipeline_config())
     sc = device_scenario(family, preset, seed, protocol, randomise, device_overrides, tuple(without))
     rec: dict[str, Any] = {"family": family, "preset": preset, "seed": int(seed), "protocol": protocol,

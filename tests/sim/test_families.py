@@ -249,7 +249,7 @@ def test_an_invalid_simulated_dataset_is_recorded_with_its_problems(monkeypatch)
     assert "/tmp" not in rec["error"]
 
 
-def test_effect_free_twin_removes_only_the_named_effect(tmp_path):
+def test_effect_free_twin_removes_only_the_named_effect(tmp_path, monkeypatch):
     """``selfsense devices bench --without EFFECT`` (device_scenario's ``without``): the twin is the same device, drives
     and draw with the named effect set to zero and every other effect kept, so that the pair measures that effect's
     cost; a name that is no simulator effect is refused before anything is simulated, and a resumed folder made
@@ -268,8 +268,13 @@ def test_effect_free_twin_removes_only_the_named_effect(tmp_path):
     # the clean preset has no leakage: its twin without it is the device itself
     clean = device_scenario("gpi", "clean", 3, "thesis", "device", without=("leakage",))
     assert clean == device_scenario("gpi", "clean", 3, "thesis", "device")
-    with pytest.raises(ValueError, match=r"without: unknown effects \['ofset_drift'\]"):
-        run_device("gpi", "drift", 3, without=("ofset_drift",))
+    import selfsense.sim.families as fam
+
+    with monkeypatch.context() as m:   # refused before the draw (which simulates the free stroke)
+        m.setattr(fam, "draw_device", lambda *a, **k: pytest.fail("a device was drawn for an unknown effect name"))
+        for call in (run_device, device_scenario):
+            with pytest.raises(ValueError, match=r"without: unknown effects \['ofset_drift'\]"):
+                call("gpi", "drift", 3, without=("ofset_drift",))
     assert main(["bench", "--n", "1", "--families", "gpi", "--presets", "drift", "--without", "drift",
                  "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
