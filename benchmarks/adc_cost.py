@@ -9,6 +9,9 @@ and the charge error in volts of the H(q) target ``V - Q / (n_A C_p)`` (catalog 
     python benchmarks/adc_cost.py --native benchmarks/cross_device/whole_device/thesis_relay_fix \
         --fine benchmarks/cross_device/whole_device/thesis_adc18 --jobs 2 \
         --out benchmarks/cross_device/whole_device/thesis_adc18/adc_cost.md
+
+``--native`` takes several folders where the drawn-ADC records of the devices are spread over them (a device scored
+again in a later folder is taken from there).
 """
 from __future__ import annotations
 
@@ -62,7 +65,9 @@ def _resolution(args) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--native", required=True, help="records with the drawn ADC resolution")
+    ap.add_argument("--native", required=True, nargs="+",
+                    help="records with the drawn ADC resolution (one folder or several: a device a later folder "
+                         "holds too, e.g. scored again after a fix, is taken from the later one)")
     ap.add_argument("--fine", required=True, help="records of the same devices with --set adc_bits=N")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", required=True, help="markdown file to write")
@@ -71,7 +76,8 @@ def main(argv=None) -> int:
 
     single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     key = ["family", "preset", "seed"]
-    nat, fine = _records(a.native), _records(a.fine)
+    nat = pd.concat([_records(f) for f in a.native], ignore_index=True).drop_duplicates(key, keep="last")
+    fine = _records(a.fine)
     bits = sorted({int(b) for b in fine.get("override_adc_bits", pd.Series(dtype=float)).dropna()})
     m = nat.merge(fine, on=key, suffixes=("", "_fine"))
     if m.empty:
@@ -80,9 +86,10 @@ def main(argv=None) -> int:
         res = pd.DataFrame(list(ex.map(_resolution, [tuple(r) for r in m[key].itertuples(index=False)])))
     m = m.merge(res, on=key)
     lines = [f"# What the ADC costs (whole-device randomisation, thesis protocol)\n",
-             f"Command: `python benchmarks/adc_cost.py --native {a.native} --fine {a.fine} --jobs {a.jobs} "
+             f"Command: `python benchmarks/adc_cost.py --native {' '.join(a.native)} --fine {a.fine} --jobs {a.jobs} "
              f"--out {a.out}`\n",
-             f"Table 3 of the same devices, drives and noise with their drawn ADC (`{a.native}`) and with "
+             f"Table 3 of the same devices, drives and noise with their drawn ADC "
+             f"({', '.join(f'`{f}`' for f in a.native)}) and with "
              f"{'/'.join(map(str, bits)) or '?'} bits (`{a.fine}`); the charge-resolution check "
              "(`selfsense.chain.charge.charge_resolution`, reference-free, on the calibration trials of the drawn "
              "dataset): dithered or not, and the charge error in volts of the H(q) target (1 SD, RMS).\n",

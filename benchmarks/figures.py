@@ -86,6 +86,7 @@ DATES = {
     "whole_device_without_offset_drift_fresh91": "2026-12-07",
     "whole_device_without_leakage_fresh91": "2026-12-07",
     "whole_device_without_creep_fresh91": "2026-12-07",
+    "whole_device_adc18_fresh91": "2026-12-07",
     "whole_device_weak_reference_fresh94": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
@@ -392,6 +393,9 @@ COMMANDS = {
     "whole_device_without_creep_fresh91": "selfsense devices bench --n 3 --first-seed 91 --presets drift --jobs 2 "
                                           "--protocol thesis --randomise device --without creep --out "
                                           "benchmarks/cross_device/whole_device/without_creep_fresh91",
+    "whole_device_adc18_fresh91": "selfsense devices bench --n 6 --first-seed 91 --presets clean --jobs 2 --protocol "
+                                  "thesis --randomise device --set adc_bits=18 --out "
+                                  "benchmarks/cross_device/whole_device/adc18_fresh91",
     "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
                                            "--protocol thesis --randomise device --out benchmarks/cross_device/"
                                            "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
@@ -586,6 +590,7 @@ WHOLE_REV94 = "benchmarks/cross_device/whole_device/reversible_fresh94"
 WHOLE_WOOD91 = "benchmarks/cross_device/whole_device/without_offset_drift_fresh91"
 WHOLE_WOLEAK91 = "benchmarks/cross_device/whole_device/without_leakage_fresh91"
 WHOLE_WOCREEP91 = "benchmarks/cross_device/whole_device/without_creep_fresh91"
+WHOLE_ADC18_91 = "benchmarks/cross_device/whole_device/adc18_fresh91"
 WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
@@ -939,7 +944,12 @@ def cross_device_figures() -> list[Fig]:
             + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
                                      "the same devices with an 18-bit ADC (diagnosis: what the drawn ADC costs), "
                                      "seeds 0-4", COMMANDS["whole_device_adc18"], DATES["whole_device_adc18"])
-               if (ROOT / WHOLE_ADC18 / "cross_device.csv").exists() else []))
+               if (ROOT / WHOLE_ADC18 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_ADC18_91}/cross_device.csv",
+                                     "the clean devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
+                                     "ADC costs the current code)", COMMANDS["whole_device_adc18_fresh91"],
+                                     DATES["whole_device_adc18_fresh91"])
+               if (ROOT / WHOLE_ADC18_91 / "cross_device.csv").exists() else []))
 
 
 ERROR_CAUSES = {"fresh seeds 42-43 (first contact of the measure)":
