@@ -10,14 +10,15 @@ and the charge error in volts of the H(q) target ``V - Q / (n_A C_p)`` (catalog 
         --fine benchmarks/cross_device/whole_device/thesis_adc18 --jobs 2 \
         --out benchmarks/cross_device/whole_device/thesis_adc18/adc_cost.md
 
-``--native`` takes several folders where the drawn-ADC records of the devices are spread over them (a device scored
-again in a later folder is taken from there).
+``--native`` takes several folders where the drawn-ADC records of the devices are spread over them (a device held by
+several is taken from a folder where it was scored, the later one if in several).
 """
 from __future__ import annotations
 
 import argparse
 import glob
 import json
+import shlex
 import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -65,9 +66,9 @@ def _resolution(args) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--native", required=True, nargs="+",
-                    help="records with the drawn ADC resolution (one folder or several: a device a later folder "
-                         "holds too, e.g. scored again after a fix, is taken from the later one)")
+    ap.add_argument("--native", required=True, nargs="+", action="extend",
+                    help="records with the drawn ADC resolution (one folder or several: a device several hold is "
+                         "taken from one where it was scored, e.g. again after a fix, the later one if in several)")
     ap.add_argument("--fine", required=True, help="records of the same devices with --set adc_bits=N")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", required=True, help="markdown file to write")
@@ -76,7 +77,10 @@ def main(argv=None) -> int:
 
     single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
     key = ["family", "preset", "seed"]
-    nat = pd.concat([_records(f) for f in a.native], ignore_index=True).drop_duplicates(key, keep="last")
+    nat = pd.concat([_records(f) for f in a.native], ignore_index=True)
+    # a device held by several folders: its scored record (status ok) first, then the later folder's
+    nat = (nat.assign(_ok=(nat["status"] == "ok"), _order=range(len(nat)))
+           .sort_values(["_ok", "_order"]).drop_duplicates(key, keep="last").drop(columns=["_ok", "_order"]))
     fine = _records(a.fine)
     bits = sorted({int(b) for b in fine.get("override_adc_bits", pd.Series(dtype=float)).dropna()})
     m = nat.merge(fine, on=key, suffixes=("", "_fine"))
@@ -86,7 +90,7 @@ def main(argv=None) -> int:
         res = pd.DataFrame(list(ex.map(_resolution, [tuple(r) for r in m[key].itertuples(index=False)])))
     m = m.merge(res, on=key)
     lines = [f"# What the ADC costs (whole-device randomisation, thesis protocol)\n",
-             f"Command: `python benchmarks/adc_cost.py --native {' '.join(a.native)} --fine {a.fine} --jobs {a.jobs} "
+             f"Command: `python benchmarks/adc_cost.py --native {shlex.join(a.native)} --fine {a.fine} --jobs {a.jobs} "
              f"--out {a.out}`\n",
              f"Table 3 of the same devices, drives and noise with their drawn ADC "
              f"({', '.join(f'`{f}`' for f in a.native)}) and with "
