@@ -87,6 +87,7 @@ DATES = {
     "whole_device_without_leakage_fresh91": "2026-12-07",
     "whole_device_without_creep_fresh91": "2026-12-07",
     "whole_device_adc18_fresh91": "2026-12-07",
+    "whole_device_adc18_drift_fresh91": "2026-12-07",
     "whole_device_weak_reference_fresh94": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
@@ -396,6 +397,9 @@ COMMANDS = {
     "whole_device_adc18_fresh91": "selfsense devices bench --n 6 --first-seed 91 --presets clean --jobs 2 --protocol "
                                   "thesis --randomise device --set adc_bits=18 --out "
                                   "benchmarks/cross_device/whole_device/adc18_fresh91",
+    "whole_device_adc18_drift_fresh91": "selfsense devices bench --n 6 --first-seed 91 --presets drift --jobs 2 "
+                                        "--protocol thesis --randomise device --set adc_bits=18 --out "
+                                        "benchmarks/cross_device/whole_device/adc18_drift_fresh91",
     "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
                                            "--protocol thesis --randomise device --out benchmarks/cross_device/"
                                            "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
@@ -591,6 +595,7 @@ WHOLE_WOOD91 = "benchmarks/cross_device/whole_device/without_offset_drift_fresh9
 WHOLE_WOLEAK91 = "benchmarks/cross_device/whole_device/without_leakage_fresh91"
 WHOLE_WOCREEP91 = "benchmarks/cross_device/whole_device/without_creep_fresh91"
 WHOLE_ADC18_91 = "benchmarks/cross_device/whole_device/adc18_fresh91"
+WHOLE_ADC18_D91 = "benchmarks/cross_device/whole_device/adc18_drift_fresh91"
 WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
@@ -949,7 +954,12 @@ def cross_device_figures() -> list[Fig]:
                                      "the clean devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
                                      "ADC costs the current code)", COMMANDS["whole_device_adc18_fresh91"],
                                      DATES["whole_device_adc18_fresh91"])
-               if (ROOT / WHOLE_ADC18_91 / "cross_device.csv").exists() else []))
+               if (ROOT / WHOLE_ADC18_91 / "cross_device.csv").exists() else [])
+            + (_device_table_figures(f"{WHOLE_ADC18_D91}/cross_device.csv",
+                                     "the drift devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
+                                     "ADC costs the current code)", COMMANDS["whole_device_adc18_drift_fresh91"],
+                                     DATES["whole_device_adc18_drift_fresh91"])
+               if (ROOT / WHOLE_ADC18_D91 / "cross_device.csv").exists() else []))
 
 
 ERROR_CAUSES = {"fresh seeds 42-43 (first contact of the measure)":
