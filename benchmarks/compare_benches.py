@@ -6,7 +6,8 @@ run where the channel is dithered, the first elsewhere".
     python benchmarks/compare_benches.py benchmarks/cross_device/whole_device/thesis_quantiser_bound \\
         benchmarks/cross_device/whole_device/offset_drift_on --out benchmarks/cross_device/whole_device/offset_drift_on/compare.md
 
-Each argument is a folder written by ``selfsense devices bench`` (its ``records.csv``); devices are matched on family,
+Each argument is a folder written by ``selfsense devices bench`` (its ``records.csv``; the first run may be kept in
+several, ``--first-also``); devices are matched on family,
 preset and seed, and only the devices both runs scored are compared. "Dithered" is the record's
 ``charge_resolution_dx_pct == 0``: the estimator found the shunt channel dithered in every validation trial
 (``selfsense.chain.charge.charge_resolution``, reference-free). "Better" / "worse": the displacement error moved by more
@@ -23,10 +24,22 @@ import pandas as pd
 KEYS = ["family", "preset", "seed"]
 
 
-def compare(base_dir: str | Path, other_dir: str | Path) -> pd.DataFrame:
-    """One row per device both runs scored: the two Table 3 errors and the dithered flag."""
+def _records(dirs) -> pd.DataFrame:
+    """The records of one run kept in several folders: a device several hold is taken from one where it was scored
+    (status ok), the later folder where more than one did."""
+    frames = []
+    for k, d in enumerate(dirs):
+        r = pd.read_csv(Path(d) / "records.csv")
+        frames.append(r.assign(_ok=(r["status"] == "ok") if "status" in r else True, _order=k))
+    r = pd.concat(frames, ignore_index=True).sort_values(["_ok", "_order"], kind="stable")
+    return r.drop_duplicates(KEYS, keep="last")
+
+
+def compare(base_dir, other_dir: str | Path) -> pd.DataFrame:
+    """One row per device both runs scored: the two Table 3 errors and the dithered flag. ``base_dir``: a folder or
+    a list of folders holding the first run (:func:`_records`)."""
     cols = KEYS + ["displacement_pct", "force_pct", "charge_resolution_dx_pct"]
-    a = pd.read_csv(Path(base_dir) / "records.csv")[cols]
+    a = _records([base_dir] if isinstance(base_dir, (str, Path)) else list(base_dir))[cols]
     b = pd.read_csv(Path(other_dir) / "records.csv")[cols]
     m = a.merge(b, on=KEYS, suffixes=("_base", "_other"))
     m["dithered"] = m["charge_resolution_dx_pct_other"] == 0
@@ -67,13 +80,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("first", help="a `selfsense devices bench` folder (its records.csv)")
     ap.add_argument("second", help="another one, on (some of) the same devices")
+    ap.add_argument("--first-also", action="append", default=[], metavar="DIR",
+                    help="another folder of the first run (repeatable): a device several folders hold is taken from "
+                         "one where it was scored, the later folder where more than one did")
     ap.add_argument("--out", default=None, help="also write the Markdown here")
     a = ap.parse_args(argv)
-    m = compare(a.first, a.second)
+    first = [a.first] + list(a.first_also)
+    m = compare(first, a.second)
     if m.empty:
         print(f"compare_benches: no device is scored in both {a.first} and {a.second}", file=sys.stderr)
         return 2
-    text = markdown(m, a.first, a.second)
+    text = markdown(m, "`, `".join(first), a.second)
     print(text, end="")
     if a.out:
         Path(a.out).write_text(text)

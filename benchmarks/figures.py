@@ -89,6 +89,8 @@ DATES = {
     "whole_device_adc18_fresh91": "2026-12-07",
     "whole_device_adc18_drift_fresh91": "2026-12-07",
     "whole_device_weak_reference_fresh94": "2026-12-07",
+    "whole_device_current_fresh97": "2026-12-07",
+    "whole_device_current_drift_fresh97": "2026-12-07",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -400,6 +402,12 @@ COMMANDS = {
     "whole_device_adc18_drift_fresh91": "selfsense devices bench --n 6 --first-seed 91 --presets drift --jobs 2 "
                                         "--protocol thesis --randomise device --set adc_bits=18 --out "
                                         "benchmarks/cross_device/whole_device/adc18_drift_fresh91",
+    "whole_device_current_fresh97": "selfsense devices bench --n 3 --first-seed 97 --presets clean --jobs 1 "
+                                    "--protocol thesis --randomise device --out "
+                                    "benchmarks/cross_device/whole_device/current_fresh97",
+    "whole_device_current_drift_fresh97": "selfsense devices bench --n 3 --first-seed 97 --presets drift --jobs 2 "
+                                          "--protocol thesis --randomise device --out "
+                                          "benchmarks/cross_device/whole_device/current_drift_fresh97",
     "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
                                            "--protocol thesis --randomise device --out benchmarks/cross_device/"
                                            "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
@@ -597,6 +605,9 @@ WHOLE_WOCREEP91 = "benchmarks/cross_device/whole_device/without_creep_fresh91"
 WHOLE_ADC18_91 = "benchmarks/cross_device/whole_device/adc18_fresh91"
 WHOLE_ADC18_D91 = "benchmarks/cross_device/whole_device/adc18_drift_fresh91"
 WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
+#: the current code on whole-device seeds nothing had been scored on (first contact): folder -> key of COMMANDS, DATES
+WHOLE_FRESH97 = {"benchmarks/cross_device/whole_device/current_fresh97": "whole_device_current_fresh97",
+                 "benchmarks/cross_device/whole_device/current_drift_fresh97": "whole_device_current_drift_fresh97"}
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -959,7 +970,11 @@ def cross_device_figures() -> list[Fig]:
                                      "the drift devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
                                      "ADC costs the current code)", COMMANDS["whole_device_adc18_drift_fresh91"],
                                      DATES["whole_device_adc18_drift_fresh91"])
-               if (ROOT / WHOLE_ADC18_D91 / "cross_device.csv").exists() else []))
+               if (ROOT / WHOLE_ADC18_D91 / "cross_device.csv").exists() else [])
+            + [f for src, key in WHOLE_FRESH97.items() if (ROOT / src / "cross_device.csv").exists()
+               for f in _device_table_figures(f"{src}/cross_device.csv", "whole-device randomisation, thesis "
+                                              "calibration, fresh seeds 97-99 (current code, first contact)",
+                                              COMMANDS[key], DATES[key])])
 
 
 ERROR_CAUSES = {"fresh seeds 42-43 (first contact of the measure)":

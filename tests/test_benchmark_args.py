@@ -104,3 +104,30 @@ def test_every_script_that_runs_cases_in_workers_pins_one_blas_thread():
             unpinned.append(p.name)
     assert unpinned == []
 
+
+
+def test_compare_benches_takes_the_first_run_from_several_folders(tmp_path):
+    """compare_benches.py --first-also: a device that several folders of the first run hold is taken from one where it
+    was scored (status ok), the later folder where more than one did; the order of the folders decides nothing else."""
+    import pandas as pd
+
+    spec_c = importlib.util.spec_from_file_location("compare_benches", ROOT / "benchmarks" / "compare_benches.py")
+    cb = importlib.util.module_from_spec(spec_c)
+    spec_c.loader.exec_module(cb)
+
+    def write(name, rows):
+        d = tmp_path / name
+        d.mkdir()
+        pd.DataFrame(rows, columns=["family", "preset", "seed", "status", "displacement_pct", "force_pct",
+                                    "charge_resolution_dx_pct"]).to_csv(d / "records.csv", index=False)
+        return d
+
+    a = write("a", [("bw", "clean", 1, "ok", 4.0, 2.0, 0.0), ("bw", "clean", 2, "invalid_dataset", None, None, None)])
+    b = write("b", [("bw", "clean", 2, "ok", 6.0, 3.0, 0.5), ("bw", "clean", 1, "ok", 5.0, 2.5, 0.0)])
+    c = write("c", [("bw", "clean", 2, "failed", None, None, None)])
+    new = write("new", [("bw", "clean", 1, "ok", 3.0, 1.0, 0.0), ("bw", "clean", 2, "ok", 7.0, 4.0, 0.5)])
+    m = cb.compare([a, b, c], new).set_index("seed")
+    assert m.loc[1, "displacement_pct_base"] == 5.0      # both scored it: the later folder
+    assert m.loc[2, "displacement_pct_base"] == 6.0      # only b scored it, c (later) failed
+    assert m.loc[2, "displacement_pct_other"] == 7.0 and not m.loc[2, "dithered"]
+    assert cb.compare(a, new).set_index("seed").loc[1, "displacement_pct_base"] == 4.0   # one folder, as before
