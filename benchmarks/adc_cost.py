@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from _records import DEVICE_KEYS, one_per_device  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 
 def _records(folder: str) -> pd.DataFrame:
@@ -76,11 +77,9 @@ def main(argv=None) -> int:
     from selfsense.determinism import single_thread_blas
 
     single_thread_blas()   # one BLAS thread per process and its workers, as the selfsense command runs
-    key = ["family", "preset", "seed"]
-    nat = pd.concat([_records(f) for f in a.native], ignore_index=True)
+    key = list(DEVICE_KEYS)
     # a device held by several folders: its scored record (status ok) first, then the later folder's
-    nat = (nat.assign(_ok=(nat["status"] == "ok"), _order=range(len(nat)))
-           .sort_values(["_ok", "_order"]).drop_duplicates(key, keep="last").drop(columns=["_ok", "_order"]))
+    nat = one_per_device(_records(f) for f in a.native)
     fine = _records(a.fine)
     bits = sorted({int(b) for b in fine.get("override_adc_bits", pd.Series(dtype=float)).dropna()})
     m = nat.merge(fine, on=key, suffixes=("", "_fine"))

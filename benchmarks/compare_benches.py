@@ -21,18 +21,17 @@ from pathlib import Path
 
 import pandas as pd
 
-KEYS = ["family", "preset", "seed"]
+if str(Path(__file__).resolve().parent) not in sys.path:   # loaded by path (the tests), not run as a script
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _records import DEVICE_KEYS, one_per_device  # noqa: E402
+
+KEYS = list(DEVICE_KEYS)
 
 
 def _records(dirs) -> pd.DataFrame:
-    """The records of one run kept in several folders: a device several hold is taken from one where it was scored
-    (status ok), the later folder where more than one did."""
-    frames = []
-    for k, d in enumerate(dirs):
-        r = pd.read_csv(Path(d) / "records.csv")
-        frames.append(r.assign(_ok=(r["status"] == "ok") if "status" in r else True, _order=k))
-    r = pd.concat(frames, ignore_index=True).sort_values(["_ok", "_order"], kind="stable")
-    return r.drop_duplicates(KEYS, keep="last")
+    """The records of one run kept in several folders (:func:`_records.one_per_device`: a device several hold is taken
+    from one where it was scored, the later folder where more than one did)."""
+    return one_per_device(pd.read_csv(Path(d) / "records.csv") for d in dirs)
 
 
 def compare(base_dir, other_dir: str | Path) -> pd.DataFrame:

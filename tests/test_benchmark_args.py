@@ -131,3 +131,29 @@ def test_compare_benches_takes_the_first_run_from_several_folders(tmp_path):
     assert m.loc[2, "displacement_pct_base"] == 6.0      # only b scored it, c (later) failed
     assert m.loc[2, "displacement_pct_other"] == 7.0 and not m.loc[2, "dithered"]
     assert cb.compare(a, new).set_index("seed").loc[1, "displacement_pct_base"] == 4.0   # one folder, as before
+
+
+def test_one_per_device_keeps_the_scored_record_of_the_latest_part():
+    """benchmarks/_records.py (compare_benches --first-also, adc_cost --native): one row per device; a scored record
+    beats a later failed one, the later of two scored ones wins, a part without a status column counts as scored, and
+    no parts is an error rather than an empty table."""
+    import pandas as pd
+    import pytest
+
+    spec_r = importlib.util.spec_from_file_location("bench_records", ROOT / "benchmarks" / "_records.py")
+    rec = importlib.util.module_from_spec(spec_r)
+    spec_r.loader.exec_module(rec)
+    cols = ["family", "preset", "seed", "status", "x"]
+    p1 = pd.DataFrame([("gpi", "drift", 3, "ok", 1.0), ("gpi", "drift", 4, "ok", 2.0),
+                       ("gpi", "clean", 3, "failed", 9.0)], columns=cols)
+    p2 = pd.DataFrame([("gpi", "drift", 3, "failed", 8.0), ("gpi", "drift", 4, "ok", 3.0)], columns=cols)
+    p3 = pd.DataFrame([("gpi", "clean", 3, 5.0)], columns=["family", "preset", "seed", "x"])   # no status column
+    got = rec.one_per_device([p1, p2, p3]).set_index(["preset", "seed"])["x"]
+    assert len(got) == 3 and list(rec.one_per_device([p1, p2, p3]).columns) == cols
+    assert got[("drift", 3)] == 1.0     # the later part failed it: the scored record stays
+    assert got[("drift", 4)] == 3.0     # both scored it: the later part
+    assert got[("clean", 3)] == 5.0     # scored (no status column) beats the earlier failure
+    only_failed = rec.one_per_device([p2.iloc[[0]], p1.iloc[[2]]])
+    assert sorted(only_failed["x"]) == [8.0, 9.0]   # different devices, each kept though none was scored
+    with pytest.raises(ValueError, match="no records"):
+        rec.one_per_device([])
