@@ -22,6 +22,7 @@ import re
 import statistics
 import sys
 from pathlib import Path
+from collections.abc import Callable
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -555,6 +556,12 @@ def _device_table_figures(src: str, what: str, command: str, date: str,
     return out
 
 
+def _if_made(folder: str, rows: Callable[[], list[Fig]]) -> list[Fig]:
+    """``rows()``, the figures of one benchmark folder, where that benchmark was run (its ``cross_device.csv`` is
+    there), else none: a record folder that a checkout lacks leaves its rows out instead of failing the table."""
+    return rows() if (ROOT / folder / "cross_device.csv").exists() else []
+
+
 def _worst_best_fig(src: str, what: str, command: str, date: str, history: bool = False) -> Fig:
     """The worst / best family ratio of the medians of a ``selfsense devices bench`` table, per preset and measurement
     (issue target: <= 2)."""
@@ -716,51 +723,46 @@ def cross_device_figures() -> list[Fig]:
             + duhem_linear_figures(groups)
             # seeds 0-4 of all five families and both presets with the current code: the simulator's relay fix
             # (docs/method.md) changes the records of the devices whose relay segment carried the residual current
-            + (_device_table_figures(f"{WHOLE_RELAY}/cross_device.csv",
+            + _if_made(WHOLE_RELAY, lambda: _device_table_figures(f"{WHOLE_RELAY}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, after the simulator relay fix "
                                      "and the holds' bound on the calibration leakage, seeds 0-4",
-                                     COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"], history=True)
-               if (ROOT / WHOLE_RELAY / "cross_device.csv").exists() else [])
+                                     COMMANDS["whole_device_relay_fix"], DATES["whole_device_relay_fix"], history=True))
             # the same seeds with the current code: the hold evidence gated by the charge resolution (1 of 50 records
             # changed); seeds 5-9 added with the same code (first contact, 10 devices per family and preset)
-            + (_device_table_figures(f"{WHOLE_CRES}/cross_device.csv",
+            + _if_made(WHOLE_CRES, lambda: _device_table_figures(f"{WHOLE_CRES}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, hold evidence gated by the "
                                      "charge resolution (before the leakage fold majority), seeds 0-9 (5-9 scored "
                                      "once, first contact)",
                                      COMMANDS["whole_device_charge_resolution"],
-                                     DATES["whole_device_charge_resolution"], history=True)
-               if (ROOT / WHOLE_CRES / "cross_device.csv").exists() else [])
+                                     DATES["whole_device_charge_resolution"], history=True))
             # the same 100 devices with the leakage fold majority and the selected-form check
-            + (_device_table_figures(f"{WHOLE_FM}/cross_device.csv",
+            + _if_made(WHOLE_FM, lambda: _device_table_figures(f"{WHOLE_FM}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, leakage fold majority and "
                                      "selected-form check (before the holds' g was exempt from it), seeds 0-9",
                                      COMMANDS["whole_device_fold_majority"], DATES["whole_device_fold_majority"],
-                                     history=True)
-               if (ROOT / WHOLE_FM / "cross_device.csv").exists() else [])
+                                     history=True))
             # the same 100 devices with the newest code scored on them (default configuration): a g the holds
             # measure is not re-checked by the selected form; not rescored after the leakage corroboration rule
             # (2026-11-28, docs/method.md 6c), which changes the devices where the calibration rows and the holds agree
-            + (_device_table_figures(f"{WHOLE_HG}/cross_device.csv",
+            + _if_made(WHOLE_HG, lambda: _device_table_figures(f"{WHOLE_HG}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, the holds' leakage exempt from "
                                      "the selected-form check (before the leakage corroboration rule), seeds 0-9",
                                      COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])
                + [_worst_best_fig(f"{WHOLE_HG}/cross_device.csv", "whole-device randomisation, thesis calibration, "
                                   "before the leakage corroboration rule, five families, 10 devices each",
-                                  COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])]
-               if (ROOT / WHOLE_HG / "cross_device.csv").exists() else [])
+                                  COMMANDS["whole_device_holds_g"], DATES["whole_device_holds_g"])])
             # the same 100 devices with the quantiser member switched on (config quantiser: auto, not the default;
             # docs/method.md 1b'): a measured alternative, not the score of the default configuration
-            + (_device_table_figures(f"{WHOLE_QZ}/cross_device.csv",
+            + _if_made(WHOLE_QZ, lambda: _device_table_figures(f"{WHOLE_QZ}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, with the quantiser member "
                                      "switched on (config quantiser: auto, not the default), seeds 0-9",
                                      COMMANDS["whole_device_quantiser"], DATES["whole_device_quantiser"], history=True)
                + [_worst_best_fig(f"{WHOLE_QZ}/cross_device.csv", "whole-device randomisation, thesis calibration, "
                                   "with the quantiser member switched on (not the default), five families, 10 devices "
                                   "each", COMMANDS["whole_device_quantiser"], DATES["whole_device_quantiser"],
-                                  history=True)]
-               if (ROOT / WHOLE_QZ / "cross_device.csv").exists() else [])
+                                  history=True)])
             # ... and with its bound gate (docs/method.md 1b'): still switched on by config only
-            + (_device_table_figures(f"{WHOLE_QZB}/cross_device.csv",
+            + _if_made(WHOLE_QZB, lambda: _device_table_figures(f"{WHOLE_QZB}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, with the quantiser member and "
                                      "its bound gate switched on (config quantiser: auto, not the default), seeds 0-9",
                                      COMMANDS["whole_device_quantiser_bound"], DATES["whole_device_quantiser_bound"],
@@ -768,11 +770,10 @@ def cross_device_figures() -> list[Fig]:
                + [_worst_best_fig(f"{WHOLE_QZB}/cross_device.csv", "whole-device randomisation, thesis calibration, "
                                   "with the quantiser member and its bound gate switched on (not the default), five "
                                   "families, 10 devices each", COMMANDS["whole_device_quantiser_bound"],
-                                  DATES["whole_device_quantiser_bound"], history=True)]
-               if (ROOT / WHOLE_QZB / "cross_device.csv").exists() else [])
+                                  DATES["whole_device_quantiser_bound"], history=True)])
             # the voltage link's lag member: its first contact on fresh seeds 70-71 (current code), and the same devices
             # with the member forced off
-            + (_device_table_figures(f"{WHOLE_LAG}/cross_device.csv",
+            + _if_made(WHOLE_LAG, lambda: _device_table_figures(f"{WHOLE_LAG}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
                                      "lag member (its first contact, before its separability gate)",
                                      COMMANDS["whole_device_lag_fresh70"], DATES["whole_device_lag_fresh70"])
@@ -783,31 +784,27 @@ def cross_device_figures() -> list[Fig]:
                + _device_table_figures(f"{WHOLE_LAG_OFF}/cross_device.csv",
                                        "whole-device randomisation, thesis calibration, fresh seeds 70-71, the amplifier "
                                        "lag member forced off", COMMANDS["whole_device_lag_off_fresh70"],
-                                       DATES["whole_device_lag_off_fresh70"], history=True)
-               if (ROOT / WHOLE_LAG / "cross_device.csv").exists() else [])
+                                       DATES["whole_device_lag_off_fresh70"], history=True))
             # a rejected change, the Duhem map's joint hold search (docs/method.md 6b'): its first contact on fresh seeds
             # 72-73 with the current code beside it, and on seeds 70-71; not in the current code
-            + (_device_table_figures(f"{WHOLE_DUHEM_JOINT72}/cross_device.csv",
+            + _if_made(WHOLE_DUHEM_JOINT72, lambda: _device_table_figures(f"{WHOLE_DUHEM_JOINT72}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 72-73, the Duhem "
                                      "map's joint hold search (rejected, not in the current code)",
                                      COMMANDS["whole_device_duhem_joint_fresh72"],
-                                     DATES["whole_device_duhem_joint_fresh72"], history=True)
-               if (ROOT / WHOLE_DUHEM_JOINT72 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
+                                     DATES["whole_device_duhem_joint_fresh72"], history=True))
+            + _if_made(WHOLE_DUHEM_BEFORE72, lambda: _device_table_figures(f"{WHOLE_DUHEM_BEFORE72}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 72-73 (before the "
                                      "joint hold candidate)",
                                      COMMANDS["whole_device_duhem_before_fresh72"],
-                                     DATES["whole_device_duhem_before_fresh72"], history=True)
-               if (ROOT / WHOLE_DUHEM_BEFORE72 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
+                                     DATES["whole_device_duhem_before_fresh72"], history=True))
+            + _if_made(WHOLE_DUHEM_JOINT70, lambda: _device_table_figures(f"{WHOLE_DUHEM_JOINT70}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, seeds 70-71, the Duhem map's "
                                      "joint hold search (rejected, not in the current code)",
                                      COMMANDS["whole_device_duhem_joint_fresh70"],
-                                     DATES["whole_device_duhem_joint_fresh70"], history=True)
-               if (ROOT / WHOLE_DUHEM_JOINT70 / "cross_device.csv").exists() else [])
+                                     DATES["whole_device_duhem_joint_fresh70"], history=True))
             # the joint hold search as a candidate of the selection (docs/method.md 6b'): its first contact on fresh
             # seeds 74-75, the code before it on the same devices beside it
-            + (_device_table_figures(f"{WHOLE_JOINT_BEFORE74}/cross_device.csv",
+            + _if_made(WHOLE_JOINT_CAND74, lambda: _device_table_figures(f"{WHOLE_JOINT_BEFORE74}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 74-75, before the "
                                      "joint hold candidate", COMMANDS["whole_device_joint_before_fresh74"],
                                      DATES["whole_device_joint_before_fresh74"], history=True)
@@ -815,12 +812,11 @@ def cross_device_figures() -> list[Fig]:
                                        "whole-device randomisation, thesis calibration, fresh seeds 74-75, the joint "
                                        "hold candidate (its first contact)",
                                        COMMANDS["whole_device_joint_candidate_fresh74"],
-                                       DATES["whole_device_joint_candidate_fresh74"])
-               if (ROOT / WHOLE_JOINT_CAND74 / "cross_device.csv").exists() else [])
+                                       DATES["whole_device_joint_candidate_fresh74"]))
             # the quantiser member identified on the free-tip laser and on by default (docs/method.md 1b'): the code
             # before it on fresh seeds 76-78 (first contact of that code) and with it (seen once); then its first
             # contact on fresh seeds 79-81 with the code before it on the same devices beside it
-            + (_device_table_figures(f"{WHOLE_CURRENT76}/cross_device.csv",
+            + _if_made(WHOLE_QLASER76, lambda: _device_table_figures(f"{WHOLE_CURRENT76}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 76-78, the code "
                                      "before the quantiser member on the free-tip laser",
                                      COMMANDS["whole_device_current_fresh76"], DATES["whole_device_current_fresh76"],
@@ -829,9 +825,8 @@ def cross_device_figures() -> list[Fig]:
                                        "whole-device randomisation, thesis calibration, seeds 76-78 (seen once), the "
                                        "quantiser member on the free-tip laser",
                                        COMMANDS["whole_device_quantiser_laser_fresh76"],
-                                       DATES["whole_device_quantiser_laser_fresh76"], history=True)
-               if (ROOT / WHOLE_QLASER76 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_QBEFORE79}/cross_device.csv",
+                                       DATES["whole_device_quantiser_laser_fresh76"], history=True))
+            + _if_made(WHOLE_QLASER79, lambda: _device_table_figures(f"{WHOLE_QBEFORE79}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 79-81, the code "
                                      "before the quantiser member on the free-tip laser",
                                      COMMANDS["whole_device_quantiser_before_fresh79"],
@@ -845,11 +840,10 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 79-81, the quantiser member on the free-tip laser (first "
                                   "contact), five families, 3 devices each",
                                   COMMANDS["whole_device_quantiser_laser_fresh79"],
-                                  DATES["whole_device_quantiser_laser_fresh79"], history=True)]
-               if (ROOT / WHOLE_QLASER79 / "cross_device.csv").exists() else [])
+                                  DATES["whole_device_quantiser_laser_fresh79"], history=True)])
             # the H(q) selection's major-loop check and the holds' upper bound on leakage (docs/method.md 6b, 6c):
             # fresh seeds 82-84 scored with the code before them (first contact of that code), then with them
-            + (_device_table_figures(f"{WHOLE_ENVB82}/cross_device.csv",
+            + _if_made(WHOLE_ENVA82, lambda: _device_table_figures(f"{WHOLE_ENVB82}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 82-84, the code "
                                      "before the major-loop check and the holds' leakage bound",
                                      COMMANDS["whole_device_envelope_before_fresh82"],
@@ -864,10 +858,9 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 82-84, the major-loop check and the holds' leakage bound "
                                   "(first contact), five families, 3 devices each",
                                   COMMANDS["whole_device_envelope_after_fresh82"],
-                                  DATES["whole_device_envelope_after_fresh82"], history=True)]
-               if (ROOT / WHOLE_ENVA82 / "cross_device.csv").exists() else [])
+                                  DATES["whole_device_envelope_after_fresh82"], history=True)])
             # the code of f64a0a5 on fresh seeds 85-87: its first contact, scored once as it came
-            + (_device_table_figures(f"{WHOLE_CUR85}/cross_device.csv",
+            + _if_made(WHOLE_CUR85, lambda: _device_table_figures(f"{WHOLE_CUR85}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 85-87 (first contact "
                                      "of the code before the Preisach reversible part)",
                                      COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"],
@@ -876,11 +869,10 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 85-87 (first contact of the code before the Preisach "
                                   "reversible part), five families, 3 devices each",
                                   COMMANDS["whole_device_current_fresh85"], DATES["whole_device_current_fresh85"],
-                                  history=True)]
-               if (ROOT / WHOLE_CUR85 / "cross_device.csv").exists() else [])
+                                  history=True)])
             # the same code on fresh seeds 88-90: its second first contact; then the rest segments' sign test of the
             # offset drift (a rule not in the code, docs/cross_device.md) on the same devices, its first contact
-            + (_device_table_figures(f"{WHOLE_CUR88}/cross_device.csv",
+            + _if_made(WHOLE_CUR88, lambda: _device_table_figures(f"{WHOLE_CUR88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90 (first contact "
                                      "of the code before the Preisach reversible part)",
                                      COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"],
@@ -889,17 +881,15 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 88-90 (first contact of the code before the Preisach "
                                   "reversible part), five families, 3 devices each",
                                   COMMANDS["whole_device_current_fresh88"], DATES["whole_device_current_fresh88"],
-                                  history=True)]
-               if (ROOT / WHOLE_CUR88 / "cross_device.csv").exists() else [])
+                                  history=True)])
             # the current code, with the Preisach reversible part (docs/method.md 6b), on fresh seeds 91-93: its
             # first contact, scored once as it came; beside it the code before it on the same devices
-            + (_device_table_figures(f"{WHOLE_REVB91}/cross_device.csv",
+            + _if_made(WHOLE_REVB91, lambda: _device_table_figures(f"{WHOLE_REVB91}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 91-93, the code "
                                      "before the Preisach reversible part",
                                      COMMANDS["whole_device_before_reversible_fresh91"],
-                                     DATES["whole_device_before_reversible_fresh91"], history=True)
-               if (ROOT / WHOLE_REVB91 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_REV91}/cross_device.csv",
+                                     DATES["whole_device_before_reversible_fresh91"], history=True))
+            + _if_made(WHOLE_REV91, lambda: _device_table_figures(f"{WHOLE_REV91}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 91-93 (first contact "
                                      "of the current code, with the Preisach reversible part)",
                                      COMMANDS["whole_device_reversible_fresh91"],
@@ -908,10 +898,9 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 91-93 (first contact of the current code, with the "
                                   "Preisach reversible part), five families, 3 devices each",
                                   COMMANDS["whole_device_reversible_fresh91"],
-                                  DATES["whole_device_reversible_fresh91"])]
-               if (ROOT / WHOLE_REV91 / "cross_device.csv").exists() else [])
+                                  DATES["whole_device_reversible_fresh91"])])
             # the same code on fresh seeds 94-96: its second first contact
-            + (_device_table_figures(f"{WHOLE_REV94}/cross_device.csv",
+            + _if_made(WHOLE_REV94, lambda: _device_table_figures(f"{WHOLE_REV94}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 94-96 (first contact "
                                      "of the current code, its second)",
                                      COMMANDS["whole_device_reversible_fresh94"],
@@ -920,57 +909,48 @@ def cross_device_figures() -> list[Fig]:
                                   "calibration, fresh seeds 94-96 (first contact of the current code, its second), "
                                   "five families, 3 devices each",
                                   COMMANDS["whole_device_reversible_fresh94"],
-                                  DATES["whole_device_reversible_fresh94"])]
-               if (ROOT / WHOLE_REV94 / "cross_device.csv").exists() else [])
+                                  DATES["whole_device_reversible_fresh94"])])
             # the device that failed the contract at 19.1x its noise, scored once the weak reference is a warning
-            + (_device_table_figures(f"{WHOLE_WEAK94}/cross_device.csv",
+            + _if_made(WHOLE_WEAK94, lambda: _device_table_figures(f"{WHOLE_WEAK94}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, rate-dependent KP seed 96 (the "
                                      "device of seeds 94-96 that failed the data contract, scored once a weak "
                                      "reference is a warning)", COMMANDS["whole_device_weak_reference_fresh94"],
-                                     DATES["whole_device_weak_reference_fresh94"])
-               if (ROOT / WHOLE_WEAK94 / "cross_device.csv").exists() else [])
+                                     DATES["whole_device_weak_reference_fresh94"]))
             # effect-free twins of the drift preset: what one effect costs (a diagnosis, not a score of the benchmark)
-            + (_device_table_figures(f"{WHOLE_WOOD91}/cross_device.csv",
+            + _if_made(WHOLE_WOOD91, lambda: _device_table_figures(f"{WHOLE_WOOD91}/cross_device.csv",
                                      "the drift devices of seeds 91-93 without their offset drift (effect-free twins; "
                                      "diagnosis: what the offset drift costs)",
                                      COMMANDS["whole_device_without_offset_drift_fresh91"],
-                                     DATES["whole_device_without_offset_drift_fresh91"])
-               if (ROOT / WHOLE_WOOD91 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_WOLEAK91}/cross_device.csv",
+                                     DATES["whole_device_without_offset_drift_fresh91"]))
+            + _if_made(WHOLE_WOLEAK91, lambda: _device_table_figures(f"{WHOLE_WOLEAK91}/cross_device.csv",
                                      "the drift devices of seeds 91-93 without their leakage (effect-free twins; "
                                      "diagnosis: what the leakage costs)",
                                      COMMANDS["whole_device_without_leakage_fresh91"],
-                                     DATES["whole_device_without_leakage_fresh91"])
-               if (ROOT / WHOLE_WOLEAK91 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_WOCREEP91}/cross_device.csv",
+                                     DATES["whole_device_without_leakage_fresh91"]))
+            + _if_made(WHOLE_WOCREEP91, lambda: _device_table_figures(f"{WHOLE_WOCREEP91}/cross_device.csv",
                                      "the drift devices of seeds 91-93 without their mechanical creep (effect-free "
                                      "twins; diagnosis: what the creep costs)",
                                      COMMANDS["whole_device_without_creep_fresh91"],
-                                     DATES["whole_device_without_creep_fresh91"])
-               if (ROOT / WHOLE_WOCREEP91 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
+                                     DATES["whole_device_without_creep_fresh91"]))
+            + _if_made(WHOLE_RSIGN88, lambda: _device_table_figures(f"{WHOLE_RSIGN88}/cross_device.csv",
                                      "whole-device randomisation, thesis calibration, fresh seeds 88-90, the offset "
                                      "drift adopted from the rests' sign test (its first contact; rejected, not in the "
                                      "code)",
                                      COMMANDS["whole_device_rest_sign_fresh88"],
-                                     DATES["whole_device_rest_sign_fresh88"], history=True)
-               if (ROOT / WHOLE_RSIGN88 / "cross_device.csv").exists() else [])
+                                     DATES["whole_device_rest_sign_fresh88"], history=True))
             # the same devices, drives and noise with an 18-bit ADC: what the drawn 12-18-bit ADC costs (the
             # charge resolution, docs/method.md 1b); a diagnosis of the rows above, not a score of the benchmark
-            + (_device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
+            + _if_made(WHOLE_ADC18, lambda: _device_table_figures(f"{WHOLE_ADC18}/cross_device.csv",
                                      "the same devices with an 18-bit ADC (diagnosis: what the drawn ADC costs), "
-                                     "seeds 0-4", COMMANDS["whole_device_adc18"], DATES["whole_device_adc18"])
-               if (ROOT / WHOLE_ADC18 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_ADC18_91}/cross_device.csv",
+                                     "seeds 0-4", COMMANDS["whole_device_adc18"], DATES["whole_device_adc18"]))
+            + _if_made(WHOLE_ADC18_91, lambda: _device_table_figures(f"{WHOLE_ADC18_91}/cross_device.csv",
                                      "the clean devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
                                      "ADC costs the current code)", COMMANDS["whole_device_adc18_fresh91"],
-                                     DATES["whole_device_adc18_fresh91"])
-               if (ROOT / WHOLE_ADC18_91 / "cross_device.csv").exists() else [])
-            + (_device_table_figures(f"{WHOLE_ADC18_D91}/cross_device.csv",
+                                     DATES["whole_device_adc18_fresh91"]))
+            + _if_made(WHOLE_ADC18_D91, lambda: _device_table_figures(f"{WHOLE_ADC18_D91}/cross_device.csv",
                                      "the drift devices of seeds 91-96 with an 18-bit ADC (diagnosis: what the drawn "
                                      "ADC costs the current code)", COMMANDS["whole_device_adc18_drift_fresh91"],
-                                     DATES["whole_device_adc18_drift_fresh91"])
-               if (ROOT / WHOLE_ADC18_D91 / "cross_device.csv").exists() else [])
+                                     DATES["whole_device_adc18_drift_fresh91"]))
             + [f for src, key in WHOLE_FRESH97.items() if (ROOT / src / "cross_device.csv").exists()
                for f in _device_table_figures(f"{src}/cross_device.csv", "whole-device randomisation, thesis "
                                               "calibration, fresh seeds 97-99 (current code, first contact)",
