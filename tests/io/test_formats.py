@@ -152,6 +152,28 @@ def test_mat_length_mismatch(tmp_path):
         read_mat(p, dt=1e-3)
 
 
+def test_mat_matrix_channel_is_refused_not_flattened(tmp_path):
+    """A channel saved as a matrix (e.g. a MATLAB reshape) has no sample order to take for granted: flattening it row
+    by row silently scrambled a trial (Table 3 3 % -> 33 % on the sample dataset). Refused, naming file, variable and
+    shape; row and column vectors still read."""
+    t, sig = _signals(n=400)
+    p = tmp_path / "matrix.mat"
+    scipy.io.savemat(p, {"u_cmd": sig["u_cmd"], "v_shunt": sig["v_shunt"].reshape(20, 20, order="F"),
+                         "relay": sig["relay"][:, None]}, oned_as="row")
+    with pytest.raises(ContractError, match=r"matrix.mat.*'v_shunt'.*a vector of samples.*20 x 20"):
+        read_mat(p, dt=1e-3)
+    scipy.io.savemat(p, {"u_cmd": sig["u_cmd"], "v_shunt": sig["v_shunt"][:, None], "relay": sig["relay"]},
+                     oned_as="row")
+    np.testing.assert_array_equal(read_mat(p, dt=1e-3)["v_shunt"].to_numpy(), sig["v_shunt"])
+
+
+def test_tdms_file_without_channels_is_named_corrupt(tmp_path):
+    p = tmp_path / "garbage.tdms"
+    p.write_bytes(b"TDSm" + bytes(range(256)) * 4)
+    with pytest.raises(ContractError, match=r"garbage.tdms.*a TDMS file with channels.*not a TDMS file"):
+        read_tdms(p, CMAP)
+
+
 def test_mat_v73_hdf5(tmp_path):
     h5py = pytest.importorskip("h5py")
     t, sig = _signals(n=50)

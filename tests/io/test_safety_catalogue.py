@@ -228,6 +228,8 @@ YAML_CASES = [
     ("rig-plausibility-inverted", mod_rig(lambda r: r.update(plausibility={"charge_ratio_min": 9.0})),
      "a value <= plausibility.charge_ratio_max"),
     ("rig-plausibility-not-mapping", mod_rig(lambda r: r.update(plausibility=[1, 2])), "a mapping"),
+    # YAML keeps the last of two values without a word: the second shunt would rescale every charge
+    ("rig-duplicate-key", _rig_append("shunt_resistance_ohm: 1200.0\n"), "duplicate key 'shunt_resistance_ohm'"),
 ]
 
 
@@ -456,6 +458,40 @@ def test_cli_internal_error_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(vcli, "main", boom)
     rc, err = _cli(["validate", "whatever"], capsys)
     assert rc == 1 and "internal error (ZeroDivisionError" in err and len(err) < 800
+
+
+def test_cli_validate_foreign_byte_in_csv_header(dataset):
+    """A byte of another encoding in a CSV header is reported with its line, not dropped from the column name (which
+    used to give "column 'load_cll': expected column 'load_cell'", a name the file does not have)."""
+    p = dataset / "free_steps.csv"
+    p.write_bytes(p.read_bytes().replace(b"load_cell", b"load_c\xe9ll", 1))
+    errors, _ = check_dataset(dataset)
+    mine = [str(e) for e in errors if e.file == "free_steps.csv"]
+    assert len(mine) == 1 and "UTF-8" in mine[0] and "line 1" in mine[0] and "\\xe9" in mine[0], mine
+
+
+def test_time_stamps_that_cannot_resolve_the_step_are_flagged(dataset):
+    """Time stamps offset by 1e12 s resolve only 1.2e-4 s, so a 1 ms step reads as 0.98 or 1.10 ms: the median rate
+    still passes, and a warning names the column, the spread and the fix; the pristine log has no such warning."""
+    from selfsense.io import check_signals, read_log
+
+    df = read_log(dataset / "free_sine.parquet")
+    assert not [p for p in check_signals(df, name="free_sine.parquet") if p.field == "t"]
+    far = df.assign(t=df["t"] + 1e12)
+    got = [p for p in check_signals(far, name="free_sine.parquet") if p.field == "t"]
+    assert len(got) == 1 and got[0].is_warning and "subtract the first time stamp" in str(got[0]), got
+
+
+def test_cli_run_config_schema_errors_are_one_line_each(tmp_path, capsys, monkeypatch):
+    """A misspelt key or a value outside its enumeration in the pipeline config: one line per problem naming the key
+    (with the nearest known key) and exit 2 before Snakemake starts, instead of Snakemake's dump of the schema."""
+    monkeypatch.chdir(tmp_path)
+    rc, err = _cli(["run", "--dry-run", "--config", "calibraton={cv_blocks: 3}", "on_bad_trial=maybe"], capsys)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 2, err
+    assert "config key 'calibraton'" in err and "did you mean 'calibration'?" in err
+    assert "config key 'on_bad_trial': expected one of 'fail', 'skip', found 'maybe'" in err
+    assert not (tmp_path / ".snakemake").exists()
 
 
 # ---- pipeline config: refused when it loads ------------------------------------------------------------

@@ -699,3 +699,63 @@ def test_causal_offset_drift_member_streams_and_recovers_most_of_the_batch_gain(
     e_causal = err(whole)
     assert e_batch < e_none, "the batch drift member does not help here: the test would not measure anything"
     assert e_causal < e_none - 0.5 * (e_none - e_batch), (e_batch, e_causal, e_none)
+
+
+def _bad_nan(raw, tmp_path):
+    raw = raw.copy()
+    raw.loc[1000, "v_shunt"] = np.nan
+    p = tmp_path / "nan.parquet"
+    raw.to_parquet(p, index=False)
+    return p, ("nan.parquet", "'v_shunt'", "row 1001", "finite")
+
+
+def _bad_text(raw, tmp_path):
+    p = tmp_path / "text.csv"
+    lines = raw.to_csv(index=False, float_format="%.17g").splitlines()
+    cells = lines[901].split(",")            # data row 901
+    cells[list(raw.columns).index("u_cmd")] = "abc"
+    lines[901] = ",".join(cells)
+    p.write_text("\n".join(lines) + "\n")
+    return p, ("text.csv", "'u_cmd'", "row 901", "'abc'")
+
+
+def _bad_time(raw, tmp_path):
+    raw = raw.copy()
+    t = raw["t"].to_numpy().copy()
+    t[400], t[399] = t[399], t[400]          # across the first block boundary (--chunk 400)
+    raw["t"] = t
+    p = tmp_path / "time.parquet"
+    raw.to_parquet(p, index=False)
+    return p, ("time.parquet", "'t'", "row 401", "decreasing")
+
+
+@pytest.mark.parametrize("make", [_bad_nan, _bad_text, _bad_time], ids=["nan", "text-cell", "time-across-blocks"])
+def test_cli_estimate_refuses_bad_samples_naming_file_column_and_row(fitted, tmp_path, capsys, make):
+    """`selfsense estimate` checks every block it streams as the data contract checks a whole log: a NaN (which
+    the charge integral would carry into every later sample), a text cell and a time step backwards (also across a
+    block boundary) end with one line naming the file, the column and the file-wide row, exit 2, and no output."""
+    from selfsense.cli import main
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    log, frags = make(_raw(d, "obj_val"), tmp_path)
+    out = tmp_path / "out.parquet"
+    assert main(["estimate", "--model", str(model), "--dataset", str(d), "--log", str(log), "--out", str(out),
+                 "--chunk", "400"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and all(f in err for f in frags), err
+    assert not out.exists()
+
+
+def test_selfsense_stream_refuses_a_nan_sample(fitted, tmp_path, capsys):
+    from selfsense.cli import main as selfsense_main
+
+    d, est, sigs = fitted
+    model = tmp_path / "sensing.json"
+    model.write_text(json.dumps(est.to_dict()))
+    log = tmp_path / "log.csv"
+    log.write_text("t,u_cmd,v_shunt,relay\n0.0,0.0,0.001,1\n0.001,0.0,nan,1\n")
+    assert selfsense_main(["stream", "--model", str(model), "--dataset", str(d), "--input", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert "line 3" in err and "finite" in err

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,7 @@ def _log_chunks(log: str | Path, rig, chunk: int):
     import pandas as pd
 
     from selfsense.io import logs as slogs
+    from selfsense.io.errors import ContractError, Problem
 
     log = Path(log)
     if not log.is_file():
@@ -92,7 +94,7 @@ def _log_chunks(log: str | Path, rig, chunk: int):
             for b in pf.iter_batches(batch_size=chunk, columns=[fcol[c] for c in use]):
                 yield scaled({c: b.column(fcol[c]).to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
                               for c in use})
-        return pf.metadata.num_rows, "relay" in use, it()
+        return pf.metadata.num_rows, "relay" in use, _checked(log, fcol, it())
     if kind == "csv":
         header, probs, skip, units = slogs._csv_header(log.name, log, log.stat().st_size,
                                                        tuple(fcol[c] for c in _NEED))
@@ -101,18 +103,32 @@ def _log_chunks(log: str | Path, rig, chunk: int):
         if any(fcol[c] not in header for c in _NEED):
             raise missing_error(header)
         use = [c for c in fcol if fcol[c] in header]
-        reader = pd.read_csv(log, usecols=[fcol[c] for c in use], dtype="float64", chunksize=chunk,
+        reader = pd.read_csv(log, usecols=[fcol[c] for c in use], chunksize=chunk,
                              skiprows=list(range(skip)) + ([skip + 1] if units else []) or None,
                              encoding="utf-8-sig", skipinitialspace=True)
 
         def it():
+            start = 0
             with reader:
-                for df in reader:
-                    yield scaled({c: df[fcol[c]].to_numpy(np.float64) for c in use})
+                while True:
+                    try:
+                        df = next(reader)
+                    except StopIteration:
+                        return
+                    except UnicodeDecodeError as e:
+                        raise ContractError(Problem(log.name, None, None, "UTF-8 text",
+                                                    f"an undecodable byte {e.object[e.start:e.start + 1]!r} in data "
+                                                    f"row {start + 1} or later"), str(log)) from None
+                    # the contract's cell check: a text cell names its column and (file-wide) row
+                    num, probs = slogs._bad_cells(log.name, df, [fcol[c] for c in use])
+                    if probs:
+                        raise ContractError([replace(p, row=p.row + start) for p in probs], str(log))
+                    start += len(df)
+                    yield scaled({c: num[fcol[c]].to_numpy(np.float64) for c in use})
         with open(log, "rb") as fh:  # row count estimate for the progress bar (bytes per line of the first 64 KiB)
             head = fh.read(1 << 16)
         n_est = int(log.stat().st_size / max(len(head) / max(head.count(b"\n"), 1), 1.0))
-        return n_est, "relay" in use, it()
+        return n_est, "relay" in use, _checked(log, fcol, it())
     if kind in ("tdms", "mat"):
         from selfsense.io.formats import read_mat, read_tdms
 
@@ -128,9 +144,49 @@ def _log_chunks(log: str | Path, rig, chunk: int):
         def it():
             for i in range(0, len(df), chunk):
                 yield {c: a[i:i + chunk] for c, a in arrays.items()}
-        return len(df), True, it()
+        return len(df), True, _checked(log, fcol, it())
     raise ValueError(f"{log}: expected a .parquet, .csv, .tdms or .mat log (or rig.yaml format), found "
                      f"{log.suffix or 'no suffix'!r}")
+
+
+def _checked(log: Path, fcol: dict, blocks):
+    """The blocks of a log, each checked before the stream reads it, as the dataset contract checks a whole log
+    (:func:`selfsense.io.logs.check_signals`): every sample of ``t``, ``u_cmd``, ``v_shunt`` and ``relay`` finite
+    and ``t`` strictly increasing, across block boundaries too. A violation raises :class:`ContractError` naming the
+    file, its column and the 1-based data row (not a chunk's), before anything of that block is estimated: a NaN
+    would otherwise run through the charge integral and every later sample."""
+    from selfsense.io.errors import ContractError, Problem
+
+    start, prev = 0, None
+    for block in blocks:
+        probs = []
+        for c in ("t", "u_cmd", "v_shunt", "relay"):
+            x = block.get(c)
+            if x is None:
+                continue
+            bad = ~np.isfinite(x)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                probs.append(Problem(log.name, fcol[c], start + i + 1,
+                                     f"finite values in every sample ({int(bad.sum())} non-finite in rows "
+                                     f"{start + 1}-{start + len(x)})", "NaN" if np.isnan(x[i]) else float(x[i])))
+        t = block["t"]
+        if len(t) and not probs:
+            tt = t if prev is None else np.concatenate([[prev], t])
+            d = np.diff(tt)
+            bad = ~(d > 0)
+            if bad.any():
+                k = int(np.flatnonzero(bad)[0])
+                row = start + k + (1 if prev is None else 0) + 1
+                what = "duplicated" if d[k] == 0 else "decreasing"
+                probs.append(Problem(log.name, fcol["t"], row, "strictly increasing time",
+                                     f"{what} time t = {tt[k + 1]:.9g} s after {tt[k]:.9g} s"))
+        if probs:
+            raise ContractError(probs, str(log))
+        if len(t):
+            prev = float(t[-1])
+        start += len(t)
+        yield block
 
 
 def estimate_log(model: str | Path, dataset: str | Path, log: str | Path, out: str | Path,

@@ -154,6 +154,15 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, yaml.YAMLError) as exc:
         print(f"selfsense run: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    from selfsense.io.config import schema_problems
+
+    # the schema Snakemake checks first, here with one line per problem (Snakemake's error prints the whole schema)
+    schema = yaml.safe_load((workflow_dir() / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    wrong = schema_problems(cfg, schema)
+    if wrong:
+        for line in wrong:
+            print(f"selfsense run: error: {line}", file=sys.stderr)
+        return 2
     raw = workdir / str(cfg.get("raw_dir", "data/raw"))
     datasets = [str(d) for d in (cfg.get("datasets") or [])]
     missing = [d for d in datasets if not (raw / d).is_dir()]

@@ -21,6 +21,7 @@ its line number; what was written before it stays valid.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -124,6 +125,10 @@ def stream_lines(model, dataset, lines, out, offset="relay", source: str = "<std
         except (ValueError, IndexError):
             raise ValueError(f"{source}: line {lineno}: expected numbers in the columns t, u_cmd, v_shunt"
                              f"{', relay' if idx[3] >= 0 else ''}, found {line.strip()[:120]!r}") from None
+        if not all(math.isfinite(x) for x in (t, u, v, r)):   # 'nan' / 'inf' parse as numbers: one would poison
+            raise ValueError(f"{source}: line {lineno}: expected finite numbers in the columns t, u_cmd, v_shunt"
+                             f"{', relay' if idx[3] >= 0 else ''} (a NaN would corrupt the charge integral of every "
+                             f"later sample), found {line.strip()[:120]!r}")
         try:
             dx, fo = stream.step(u, v, r, t)
         except ValueError as exc:

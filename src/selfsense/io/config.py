@@ -22,7 +22,7 @@ from .errors import truncate
 from .yamlsafe import YamlInputError, load_yaml_file
 
 __all__ = ["ConfigError", "check_config", "check_config_files", "check_solver", "load_config_file",
-           "SOLVER_PACKAGES"]
+           "schema_problems", "SOLVER_PACKAGES"]
 
 #: cvxpy solver name -> the Python package that provides it (checked without importing cvxpy)
 SOLVER_PACKAGES = {"CLARABEL": "clarabel", "OSQP": "osqp", "SCS": "scs", "ECOS": "ecos", "CVXOPT": "cvxopt",
@@ -33,6 +33,41 @@ _MAX_NODES = 100_000
 
 class ConfigError(ValueError):
     """A pipeline configuration that cannot run as written; one-line message."""
+
+
+def schema_problems(cfg: Mapping, schema: Mapping) -> list[str]:
+    """The layered configuration checked against the workflow's JSON schema (``workflow/schemas/config.schema.yaml``)
+    before Snakemake reads it: one line per problem naming the key, what was expected and what was found (an unknown
+    key with the nearest known one), where Snakemake's own check would print the whole schema. Empty if valid."""
+    import difflib
+
+    import jsonschema
+
+    cls = jsonschema.validators.validator_for(schema)
+    out: list[str] = []
+    for e in sorted(cls(schema).iter_errors(cfg), key=lambda e: [str(p) for p in e.absolute_path]):
+        path = ".".join(str(p) for p in e.absolute_path)
+        if e.validator == "additionalProperties" and isinstance(e.instance, Mapping):
+            known = sorted(e.schema.get("properties", {}))
+            for k in sorted(str(k) for k in e.instance if k not in known):
+                near = difflib.get_close_matches(k, known, n=1)
+                key = f"{path}.{k}" if path else k
+                out.append(f"config key {key!r}: expected one of the known keys"
+                           + (f" (did you mean {near[0]!r}?)" if near else f" ({', '.join(known)})")
+                           + ", found an unknown key")
+            continue
+        what = {"enum": lambda: "one of " + ", ".join(repr(x) for x in e.validator_value),
+                "type": lambda: f"a value of type {e.validator_value}",
+                "minimum": lambda: f"a value >= {e.validator_value}",
+                "maximum": lambda: f"a value <= {e.validator_value}",
+                "exclusiveMinimum": lambda: f"a value > {e.validator_value}",
+                "minItems": lambda: f"at least {e.validator_value} item(s)",
+                "pattern": lambda: f"a string matching {e.validator_value!r}",
+                "required": lambda: "the keys " + ", ".join(repr(x) for x in e.validator_value)}.get(e.validator)
+        found = truncate(repr(e.instance), 80)
+        out.append(f"config key {path or '(top level)'!r}: expected {what()}, found {found}" if what else
+                   f"config key {path or '(top level)'!r}: {truncate(e.message, 200)}")
+    return out
 
 
 def load_config_file(path: str | os.PathLike) -> Any:

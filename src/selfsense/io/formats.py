@@ -67,6 +67,11 @@ def _as_float(name: str, canon: str, label: str, values: Any) -> tuple[np.ndarra
         a = a.astype(np.float64)
     if not (np.issubdtype(a.dtype, np.number)):
         return None, Problem(name, label, None, "a numeric channel", str(a.dtype))
+    if a.ndim == 0 or sum(d > 1 for d in a.shape) > 1:
+        # a 2-D matrix has no sample order that could be taken for granted (MATLAB stores columns first, NumPy
+        # rows first): flattening it would silently scramble the samples
+        return None, Problem(name, label, None, "a vector of samples (N, or a row or column matrix 1 x N / N x 1)",
+                             "a single number" if a.ndim == 0 else "a matrix of shape " + " x ".join(map(str, a.shape)))
     a = np.ravel(a)
     return a.astype(np.float64, copy=True), None
 
@@ -121,6 +126,9 @@ def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None
             raise ContractError(Problem(name, "group", None, f"a TDMS group {group!r} (groups: "
                                         + ", ".join(repr(g) for g in groups) + ")", "no such group"), str(path))
         search = [groups[group]] if group is not None else list(groups.values())
+        if not any(True for g in search for _ in g.channels()):
+            raise ContractError(Problem(name, None, None, "a TDMS file with channels",
+                                        "no channel at all (not a TDMS file, or a corrupt one)"), str(path))
         cols: dict[str, np.ndarray] = {}
         labels: dict[str, str] = {}
         probs: list[Problem] = []

@@ -33,6 +33,7 @@ LIMITS = {
     "u_cmd_min_peak_v": 0.05,   # a drive smaller than this is no drive (or V logged as kV)
     "rate_tolerance": 0.05,     # |fs_measured / sample_rate_hz - 1|
     "gap_periods": 3.0,         # a step > 3 nominal periods is a gap
+    "step_spread": 0.05,        # |step / period - 1| of the steps that are not gaps: above it, a warning
     "rail_fraction": 0.999,     # |x| >= 0.999 * adc_range_v counts as "at the rail"
     "rail_max_share": 0.005,    # more than 0.5 % of samples at the rail = saturated
     "rail_max_run": 10,         # or this many consecutive samples at the rail
@@ -76,13 +77,18 @@ def _csv_header(name: str, path: Path, size: int, wanted: tuple[str, ...] = ()
     if nl < 0 and size > len(head):
         return None, [Problem(name, None, None, f"a header line within the first {_PROBE} bytes",
                               "no line break")], 0, False
+    # the probe may cut the last line (and a multi-byte character in it): only its complete lines are decoded,
+    # strictly, so that a byte of another encoding is reported rather than dropped from a column name
+    whole = head if size <= len(head) else head[:head.rfind(b"\n") + 1]
     try:
-        text = head.decode("utf-8-sig", errors="strict" if size <= len(head) else "ignore")
-    except UnicodeDecodeError:
-        return None, [Problem(name, None, None, "a UTF-8 header line", "undecodable bytes")], 0, False
+        text = whole.decode("utf-8-sig", errors="strict")
+    except UnicodeDecodeError as e:
+        line = whole[:e.start].count(b"\n") + 1
+        return None, [Problem(name, None, None, "UTF-8 text (save the file as UTF-8)",
+                              f"the byte {whole[e.start:e.start + 1]!r} in line {line} of the file")], 0, False
     lines = text.split("\n")
     if size > len(head):
-        lines = lines[:-1]  # the probe may cut the last line
+        lines = lines[:-1]  # the line break that ends the decoded part leaves an empty last item
     rows = [[h.strip() for h in next(csv.reader([ln.rstrip("\r")]), [])] for ln in lines[:200]]
     if not rows or not any(rows[0]):
         if not any(any(r) for r in rows):
@@ -239,6 +245,20 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
                                      f"no gaps longer than {LIMITS['gap_periods']:g} sample periods "
                                      f"({period:.6g} s; {int(gap.sum())} gaps)",
                                      f"a step of {dt[k]:.6g} s"))
+            # steps that are neither gaps nor the sample period: a time base that cannot resolve its own steps
+            # (float64 time stamps far from 0: at 1e12 s they resolve 1.2e-4 s) or an irregularly clocked log
+            ok = (dt > 0) & ~gap
+            off = np.abs(dt[ok] / period - 1.0) if ok.any() else np.zeros(0)
+            if off.size and off.max() > LIMITS["step_spread"]:
+                k = int(np.flatnonzero(ok)[int(np.argmax(off))])
+                res = float(np.spacing(np.max(np.abs(t[idx]))))
+                hint = (f"; t reaches {np.max(np.abs(t[idx])):.3g} s, where float64 resolves only {res:.2g} s: "
+                        "subtract the first time stamp" if res > 0.01 * period else "")
+                probs.append(Problem(name, "t", int(rows[k]),
+                                     f"steps within {LIMITS['step_spread']:.0%} of the sample period "
+                                     f"{period:.6g} s (the estimate assumes a fixed rate)",
+                                     f"{int((off > LIMITS['step_spread']).sum())} steps off by up to "
+                                     f"{off.max():.0%}{hint}", level="warning"))
     # --- relay ------------------------------------------------------------------------------------
     r = arr["relay"]
     rf = r[np.isfinite(r)]

@@ -347,8 +347,12 @@ def check_rig(dataset_dir: str | Path) -> tuple[Rig | None, list[Problem]]:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "unknown position"
-        if "aliases" in str(getattr(e, "problem", "")):
+        prob = str(getattr(e, "problem", "") or "")
+        if "aliases" in prob:
             return None, [Problem(RIG_FILE, None, None, "no YAML aliases (*name)", f"an alias at {where}")]
+        if prob.startswith("duplicate key"):   # NoAliasLoader: a second value would silently replace the first
+            key = prob.split("'")[1] if prob.count("'") >= 2 else None
+            return None, [Problem(RIG_FILE, key, None, "each key once", prob.split(": each")[0])]
         return None, [Problem(RIG_FILE, None, None, "valid YAML", f"syntax error at {where}")]
     return parse_rig(data, d.resolve().name)
 

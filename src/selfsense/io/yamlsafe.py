@@ -3,6 +3,8 @@
 * ``yaml.SafeLoader`` (no Python objects), plus YAML 1.2 floats (``1e-3`` without a dot is a number);
 * **aliases refused** (``*name`` and merge keys ``<<: *name``): a few lines of nested aliases ("billion laughs")
   expand to gigabytes as soon as anything walks the data, and no selfsense file needs them;
+* **a key written twice in one mapping refused** (PyYAML would keep the last value silently: a second
+  ``shunt_resistance_ohm:`` line further down a rig file would change every charge without a word);
 * a size limit on the text (these files are a few kB).
 """
 from __future__ import annotations
@@ -36,6 +38,22 @@ class NoAliasLoader(yaml.SafeLoader):
                 None, None, f"YAML aliases (*{ev.anchor}) are not allowed", ev.start_mark)
         return super().compose_node(parent, index)
 
+    def construct_mapping(self, node, deep=False):  # noqa: D401 - PyYAML hook
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                try:
+                    key = self.construct_object(key_node, deep=True)
+                    hash(key)
+                except Exception:  # noqa: BLE001 - an unhashable key: the base class raises its own error
+                    continue
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r} (first at line {seen[key].line + 1}, again at line "
+                        f"{key_node.start_mark.line + 1}): each key once", key_node.start_mark)
+                seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
 
 NoAliasLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
@@ -58,6 +76,9 @@ def load_yaml_text(text: str, file: str = "<yaml>") -> Any:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "unknown position"
         prob = str(getattr(e, "problem", "") or "")
+        if prob.startswith("duplicate key"):
+            raise YamlInputError(file, f"expected each key once per mapping, found a {prob.split(': each')[0]}"
+                                 ) from None
         if "aliases" in prob:
             raise YamlInputError(file, f"expected no YAML aliases/anchors references, found one at {where} "
                                        f"({prob})") from None
