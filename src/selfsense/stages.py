@@ -78,9 +78,9 @@ def validate(dataset_dir: str | Path, out_json: str | Path, on_bad_trial: str = 
             per_trial.setdefault(trial, []).append(str(p))
     if fatal:
         raise sio.ContractError(problems)
-    valid = sorted(t for t in meta.index if t not in per_trial)
+    valid = [t for t in meta.index if t not in per_trial]   # trials.csv order (the order of listings)
     summary = {"dataset": Path(dataset_dir).name, "valid": not per_trial, "n_trials": int(len(meta)),
-               "trials": valid, "failed": {t: per_trial[t] for t in sorted(per_trial)},
+               "trials": valid, "failed": {t: per_trial[t] for t in meta.index if t in per_trial},
                "warnings": [str(w) for w in warnings]}
     for w in warnings:
         print(f"warning: {w}")
@@ -373,11 +373,13 @@ def figures(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], mod
         full[t], k = sio.read_parquet_decimated(p, sio.FIGURE_MAX_ROWS)
         if k > 1:
             dec[t] = k
-    disp = [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement" and meta.loc[t, "role"] == "validation"]
-    disp = disp or [t for t in sorted(full) if meta.loc[t, "reference"] == "displacement"]
+    listed = [t for t in meta.index if t in full]   # trials.csv order
+    disp = [t for t in listed if meta.loc[t, "reference"] == "displacement" and meta.loc[t, "role"] == "validation"]
+    disp = disp or [t for t in listed if meta.loc[t, "reference"] == "displacement"]
     if disp:
         pick = next((t for t in disp if meta.loc[t, "tip"] == "object"), disp[0])
-        caps["fig24_limiting_dc_offset"] = F.fig_limiting(full[pick], out_dir, pick)
+        caps["fig24_limiting_dc_offset"] = F.fig_limiting(full[pick], out_dir, pick, limit=bool(est.config.limit),
+                                                          dc_offset=bool(est.config.dc_offset))
     # Figs. 22-23: the sine and the mixed drive (the sine of the H(q) calibration trial when it is one)
     sig_all = {t: sio.read_parquet_decimated(p, sio.FIGURE_MAX_ROWS, columns=["t", "V_c", "V", "u_cmd"])[0]
                for t, p in signal_paths.items()}

@@ -246,3 +246,24 @@ def test_dataset_with_tdms_and_mat_logs_reads_like_parquet(tmp_path):
     assert validate_dataset(d) == []
     for t in trials["trial"]:
         pd.testing.assert_frame_equal(trial_signals(d, t), trial_signals(ref, t))
+
+
+def test_mapped_reference_channel_may_be_absent_where_the_trial_does_not_need_it(tmp_path):
+    """docs/data_format.md: laser and load_cell may be absent from a TDMS/MAT log whose trial does not use them, also
+    where the channel map names them (one map serves every trial of the rig); the reference a trial needs must be
+    there, and its absence is named as a missing channel (not as a column of NaN)."""
+    t, sig = _signals()
+    p = tmp_path / "force_trial.tdms"
+    _write_tdms(p, t, sig, skip=("laser",))
+    got = read_tdms(p, CMAP, need=("load_cell",))
+    assert got["laser"].isna().all() and np.isfinite(got["u_cmd"]).all()
+    with pytest.raises(ContractError, match=r"force_trial.tdms.*'AI2 laser'.*for 'laser'"):
+        read_tdms(p, CMAP, need=("laser",))
+    with pytest.raises(ContractError, match="'AI2 laser'"):
+        read_tdms(p, CMAP)          # the caller does not say which reference: every mapped channel must exist
+    mmap = {k: v.replace(" ", "_") for k, v in CMAP.items()}
+    m = tmp_path / "force_trial.mat"
+    scipy.io.savemat(m, {mmap[c]: sig[c] for c in ("u_cmd", "v_shunt", "relay", "load_cell")})
+    assert read_mat(m, mmap, dt=1e-3, need=("load_cell",))["laser"].isna().all()
+    with pytest.raises(ContractError, match=r"force_trial.mat.*'AI2_laser'"):
+        read_mat(m, mmap, dt=1e-3, need=("laser",))

@@ -649,3 +649,27 @@ def test_catalogue_total():
                              "test_pipeline_requirements", "test_rig_yaml_safety", "test_config_refused_at_load"}]
     n = len(PART1) + len(PLAUSIBILITY) + len(PIPELINE) + len(YAML_CASES) + len(CONFIG_CASES) + len(singles)
     assert n >= 100, n
+
+
+def test_broken_rig_with_a_channel_map_is_not_buried_under_column_errors(dataset):
+    """A rig.yaml whose channel_map says how to read the logs, broken elsewhere: its own problem and one line saying
+    the logs wait for it, instead of a false 'unknown column' for every column of every log."""
+    r = yaml.safe_load((dataset / "rig.yaml").read_text())
+    r["inamp_gain"] = "5"
+    r["channel_map"] = {"columns": {"t": "t"}}
+    (dataset / "rig.yaml").write_text(yaml.safe_dump(r, sort_keys=False))
+    errors, _ = check_dataset(dataset)
+    assert {e.file for e in errors} == {"rig.yaml"} and len(errors) == 2, "\n".join(map(str, errors))
+    assert any(e.field == "inamp_gain" for e in errors) and any("logs were not checked" in str(e) for e in errors)
+
+
+def test_daq_channel_names_without_a_channel_map_are_one_problem(dataset):
+    """A log with the DAQ's own channel names and no channel_map: one problem naming the file's columns and the
+    channel_map, not one per column."""
+    p = dataset / "free_steps.csv"
+    df = read_any(p)
+    df.columns = [f"AI{i}_{c}" for i, c in enumerate(df.columns)]
+    df.to_csv(p, index=False)
+    errors, _ = check_dataset(dataset)
+    mine = [str(e) for e in errors if e.file == "free_steps.csv"]
+    assert len(mine) == 1 and "channel_map" in mine[0] and "'AI0_t'" in mine[0], mine

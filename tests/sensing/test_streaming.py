@@ -729,7 +729,15 @@ def _bad_time(raw, tmp_path):
     return p, ("time.parquet", "'t'", "row 401", "decreasing")
 
 
-@pytest.mark.parametrize("make", [_bad_nan, _bad_text, _bad_time], ids=["nan", "text-cell", "time-across-blocks"])
+def _bad_relay(raw, tmp_path):
+    raw = raw.assign(relay=raw["relay"] * 5.0)    # a 0 / 5 V relay line logged as it is
+    p = tmp_path / "relay.parquet"
+    raw.to_parquet(p, index=False)
+    return p, ("relay.parquet", "'relay'", "row 1:", "0 or 1")
+
+
+@pytest.mark.parametrize("make", [_bad_nan, _bad_text, _bad_time, _bad_relay],
+                         ids=["nan", "text-cell", "time-across-blocks", "relay-0-5V"])
 def test_cli_estimate_refuses_bad_samples_naming_file_column_and_row(fitted, tmp_path, capsys, make):
     """`selfsense estimate` checks every block it streams as the data contract checks a whole log: a NaN (which
     the charge integral would carry into every later sample), a text cell and a time step backwards (also across a

@@ -135,10 +135,10 @@ def _log_chunks(log: str | Path, rig, chunk: int):
         cols = dict(cmap.columns) if cmap else None
         grp = cmap.group if cmap else None
         if kind == "tdms":
-            df = read_tdms(log, cols, group=grp)
+            df = read_tdms(log, cols, group=grp, need=())   # the references are not read here
         else:
             dt = None if cols and "t" in cols else rig.dt
-            df = read_mat(log, cols, group=grp, dt=dt)
+            df = read_mat(log, cols, group=grp, dt=dt, need=())
         arrays = scaled({c: df[c].to_numpy(np.float64) for c in (*_NEED, "relay")})
 
         def it():
@@ -151,8 +151,8 @@ def _log_chunks(log: str | Path, rig, chunk: int):
 
 def _checked(log: Path, fcol: dict, blocks):
     """The blocks of a log, each checked before the stream reads it, as the dataset contract checks a whole log
-    (:func:`selfsense.io.logs.check_signals`): every sample of ``t``, ``u_cmd``, ``v_shunt`` and ``relay`` finite
-    and ``t`` strictly increasing, across block boundaries too. A violation raises :class:`ContractError` naming the
+    (:func:`selfsense.io.logs.check_signals`): every sample of ``t``, ``u_cmd``, ``v_shunt`` and ``relay`` finite,
+    ``relay`` 0 or 1 and ``t`` strictly increasing, across block boundaries too. A violation raises :class:`ContractError` naming the
     file, its column and the 1-based data row (not a chunk's), before anything of that block is estimated: a NaN
     would otherwise run through the charge integral and every later sample."""
     from selfsense.io.errors import ContractError, Problem
@@ -170,6 +170,14 @@ def _checked(log: Path, fcol: dict, blocks):
                 probs.append(Problem(log.name, fcol[c], start + i + 1,
                                      f"finite values in every sample ({int(bad.sum())} non-finite in rows "
                                      f"{start + 1}-{start + len(x)})", "NaN" if np.isnan(x[i]) else float(x[i])))
+        r = block.get("relay")
+        if r is not None and not probs:
+            bad = (r != 0) & (r != 1)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                probs.append(Problem(log.name, fcol["relay"], start + i + 1,
+                                     "0 or 1 (the relay channel cannot be scaled: log it as 0 / 1, e.g. threshold a "
+                                     "0 / 5 V signal)", float(r[i])))
         t = block["t"]
         if len(t) and not probs:
             tt = t if prev is None else np.concatenate([[prev], t])

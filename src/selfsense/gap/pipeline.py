@@ -212,8 +212,8 @@ def _figure(v: dict, path: Path) -> None:
     ax.axvline(1.0, color="k", lw=1)
     ax.set_yticks(y)
     ax.set_yticklabels([f"{r['stage']}: {r['member']}" for r in rows], fontsize=7)
-    ax.set_xlabel("held-out gain of the member alone / its null threshold [-] (anchors: the chain's campaign change "
-                  "/ its adoption threshold; accepted in red)", fontsize=8)
+    ax.set_xlabel("held-out gain of the member alone / its null threshold [-]\n(anchors: the chain's campaign "
+                  "change / its adoption threshold; accepted in red)", fontsize=8)
     ax.set_title("Stage-wise gap diagnostic: which effect, where\n(cf. thesis Fig. 39 for the free-case budget)",
                  fontsize=9)
     ax.set_xscale("symlog", linthresh=1.0)

@@ -11,7 +11,7 @@ import pandas as pd
 from .errors import ContractError, Problem
 from .logs import check_log
 from .plausibility import check_plausibility
-from .rig import Rig, check_rig
+from .rig import RIG_FILE, Rig, check_rig
 from .trials import check_trials, pipeline_problems
 
 __all__ = ["Dataset", "check_dataset", "validate_dataset", "load_dataset", "trial_signals", "to_si", "SI_COLUMNS"]
@@ -41,6 +41,18 @@ def _log_problems(dataset_dir: Path, rig: Rig | None, rec: Mapping[str, Any], ma
     return df, lp
 
 
+def _logs_readable_without_rig(dataset_dir: Path) -> bool:
+    """Whether the logs can be checked without a valid rig: rig.yaml parses as a mapping and sets neither a
+    ``channel_map`` nor a ``format`` (then the logs use the canonical names and are read by their extension)."""
+    from .yamlsafe import load_yaml_file
+
+    try:
+        data = load_yaml_file(dataset_dir / RIG_FILE)
+    except Exception:  # noqa: BLE001 - any reading problem is rig.yaml's own, already reported
+        return not (dataset_dir / RIG_FILE).exists()
+    return isinstance(data, dict) and "channel_map" not in data and "format" not in data
+
+
 def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, pipeline: bool = False,
                       max_trial_samples: int | None = None
                       ) -> tuple[Rig | None, pd.DataFrame | None, list[Problem], int]:
@@ -54,7 +66,12 @@ def _dataset_problems(dataset_dir: Path, warnings: list[Problem] | None = None, 
     if pipeline and trials is not None:
         probs += pipeline_problems(trials)
     n_samples = 0
-    if trials is not None:
+    if trials is not None and rig is None and not _logs_readable_without_rig(dataset_dir):
+        # rig.yaml says how the logs are read (channel names, scales, format) but is broken: checking them against
+        # the canonical names would bury its one real problem under a false one per column of every log
+        probs.append(Problem(RIG_FILE, None, None, "a valid rig.yaml before the trial logs are checked (its "
+                             "channel_map or format says how to read them)", "the logs were not checked"))
+    elif trials is not None:
         for rec in trials.to_dict("records"):
             df, lp = _log_problems(dataset_dir, rig, rec, max_trial_samples)
             probs += [p for p in lp if not p.is_warning]

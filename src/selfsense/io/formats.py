@@ -56,6 +56,18 @@ def _missing(name: str, canon: str, wanted: str, available: list[str], where: st
                    f"a channel {wanted!r}{where} for {canon!r} (available: {avail or 'none'})", "no such channel")
 
 
+def _required(canon: str, cmap: Mapping[str, str], need: tuple[str, ...] | None) -> bool:
+    """Whether a channel missing from the file is an error: the drive channels always, ``t`` where the map names
+    it, a reference channel (``laser``, ``load_cell``) where the trial needs it (``need``: the trial's reference
+    channels, from its ``reference`` in trials.csv) -- or, when the caller does not say (``need`` None), wherever
+    the map names it."""
+    if canon == "t":
+        return canon in cmap
+    if canon not in OPTIONAL_CHANNELS:
+        return True
+    return canon in need if need is not None else canon in cmap
+
+
 def _as_float(name: str, canon: str, label: str, values: Any) -> tuple[np.ndarray | None, Problem | None]:
     a = np.asarray(values)
     if np.issubdtype(a.dtype, np.datetime64):
@@ -91,7 +103,7 @@ def _assemble(name: str, cols: dict[str, np.ndarray], labels: dict[str, str]) ->
 
 # --------------------------------------------------------------------------------------------- TDMS
 def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None, group: str | None = None,
-              ) -> pd.DataFrame:
+              need: tuple[str, ...] | None = None) -> pd.DataFrame:
     """Read an NI TDMS log (npTDMS) into the raw canonical channels.
 
     Parameters
@@ -100,6 +112,8 @@ def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None
     channels : ``{canonical: TDMS channel name}``, e.g. ``{"u_cmd": "AI0", "v_shunt": "AI1", "relay": "DO0"}``.
     group : the TDMS group holding the channels. ``None``: the only group of the file, or (several groups)
         the group where each channel name is found, which must be unambiguous.
+    need : the reference channels this trial needs (``("laser",)`` for a displacement reference); the others may be
+        absent even where the channel map names them (NaN). ``None``: every channel the map names must exist.
 
     Time ``t`` [s]: the channel mapped to ``t`` (numbers, or timestamps -> seconds since the first sample),
     else ``wf_start_offset + k * wf_increment`` of the ``u_cmd`` channel (NI waveform properties).
@@ -137,7 +151,7 @@ def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None
             wanted = cmap.get(canon, canon)
             hits = [g for g in search if wanted in [c.name for c in g.channels()]]
             if not hits:
-                if canon in cmap or (canon not in OPTIONAL_CHANNELS and canon != "t"):
+                if _required(canon, cmap, need):
                     avail = [c.name if len(search) == 1 else f"{g.name}/{c.name}"
                              for g in search for c in g.channels()]
                     where = f" in group {search[0].name!r}" if len(search) == 1 else ""
@@ -209,7 +223,8 @@ def _load_mat(path: Path) -> tuple[dict[str, Any], str]:
 
 
 def read_mat(path: str | os.PathLike, channels: Mapping[str, str] | None = None, group: str | None = None,
-             dt: float | None = None, dt_var: str | None = None) -> pd.DataFrame:
+             dt: float | None = None, dt_var: str | None = None, need: tuple[str, ...] | None = None
+             ) -> pd.DataFrame:
     """Read a MATLAB ``.mat`` log (scipy.io.loadmat; v7.3/HDF5 through h5py when installed).
 
     Parameters
@@ -220,6 +235,7 @@ def read_mat(path: str | os.PathLike, channels: Mapping[str, str] | None = None,
         e.g. ``"data.daq"``); ``None``: top-level variables.
     dt : sample period [s] when no channel is mapped to ``t``; ``t = k * dt``.
     dt_var : name of a scalar variable (in ``group``) holding the sample period [s], instead of ``dt``.
+    need : as for :func:`read_tdms`.
 
     Returns a float64 DataFrame with columns ``t, u_cmd, v_shunt, laser, load_cell, relay`` (RangeIndex).
     Raises :class:`ContractError` naming the file and the variable when a channel, the struct or the time base
@@ -250,7 +266,7 @@ def read_mat(path: str | os.PathLike, channels: Mapping[str, str] | None = None,
     for canon in CANONICAL_COLUMNS:
         wanted = cmap.get(canon, canon)
         if wanted not in scope:
-            if canon in cmap or (canon not in OPTIONAL_CHANNELS and canon != "t"):
+            if _required(canon, cmap, need):
                 probs.append(_missing(name, canon, wanted, avail, where))
             continue
         a, p = _as_float(name, canon, wanted, scope[wanted])

@@ -230,9 +230,9 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
                     ratio = fs_meas / fs
                     hint = ""
                     if 5e-4 < ratio < 2e-3:
-                        hint = " (t logged in ms?)"
+                        hint = " (t logged in ms? then set rig.yaml channel_map: {scale: {t: 1.0e-3}})"
                     elif 5e-7 < ratio < 2e-6:
-                        hint = " (t logged in us?)"
+                        hint = " (t logged in us? then set rig.yaml channel_map: {scale: {t: 1.0e-6}})"
                     probs.append(Problem(name, "t", None,
                                          f"a sample rate within 5 % of rig.yaml sample_rate_hz = {fs:g} Hz{hint}",
                                          f"{fs_meas:.6g} Hz (median step {med:.6g} s)"))
@@ -307,7 +307,8 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
         if amax > LIMITS["adc_overrange"] * adc:
             i = int(np.flatnonzero(np.abs(x) > LIMITS["adc_overrange"] * adc)[0])
             probs.append(Problem(name, c, i + 1,
-                                 f"values within the +-{adc:g} V ADC range (mV logged as V?)", f"{x[i]:.6g} V"))
+                                 f"values within the +-{adc:g} V ADC range (mV logged as V? then scale this channel "
+                                 "by 1.0e-3 in rig.yaml channel_map.scale)", f"{x[i]:.6g} V"))
             continue
         rail = np.abs(x) >= LIMITS["rail_fraction"] * adc
         nr = int(rail.sum())
@@ -391,12 +392,15 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
 
         cols = dict(cmap.columns) if cmap else None
         grp = cmap.group if cmap else None
+        # the reference channel the trial needs must be there (named by its own error, not as a column of NaN);
+        # the other may be absent even where the channel map names it (docs/data_format.md)
+        need = {"displacement": ("laser",), "force": ("load_cell",)}.get(str(reference), ())
         try:
             if kind == "tdms":
-                raw = read_tdms(path, cols, group=grp)
+                raw = read_tdms(path, cols, group=grp, need=need)
             else:
                 dt = None if (cols and "t" in cols) or rig is None else 1.0 / rig.sample_rate_hz
-                raw = read_mat(path, cols, group=grp, dt=dt)
+                raw = read_mat(path, cols, group=grp, dt=dt, need=need)
         except ContractError as e:
             return None, list(e.problems)
         fcol = {c: c for c in CANONICAL_COLUMNS}
@@ -480,6 +484,12 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
 def _column_problems(name: str, found: list[str], wanted: tuple[str, ...]) -> list[Problem]:
     """Missing / misspelt / duplicated channel columns. Extra columns (other DAQ channels) are ignored with a
     note when every wanted column is present; if one is missing they are listed, as they may be its misspelling."""
+    if found and not any(w in found for w in wanted):
+        # none of the canonical names: the DAQ's own channel names, which rig.yaml's channel_map maps (one problem
+        # instead of one per column)
+        shown = ", ".join(repr(c) for c in found[:12]) + (" ..." if len(found) > 12 else "")
+        return [Problem(name, None, None, f"the columns {', '.join(wanted)}, or a channel_map in rig.yaml naming "
+                        "this file's own columns (docs/data_format.md)", f"the columns {shown}")]
     probs = column_problems(name, found, wanted)
     if all(w in found for w in wanted):
         extra = [c for c in dict.fromkeys(found) if c not in wanted]

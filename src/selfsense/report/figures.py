@@ -224,12 +224,17 @@ def fig_h_calibration(sig: pd.DataFrame, H_target: np.ndarray, H_fit: np.ndarray
     return caption("fig21_h_calibration", f"Trial {trial}; error in % of the output range (thesis: 0.58 % mean, 2.4 % max).")
 
 
-def fig_limiting(est: pd.DataFrame, out_dir: Path, trial: str) -> str:
+def fig_limiting(est: pd.DataFrame, out_dir: Path, trial: str, limit: bool = True, dc_offset: bool = True) -> str:
+    """Thesis Fig. 24: the raw estimate and the estimate after the post-processing the configuration applies
+    (``limit``: clipped to the calibration range; ``dc_offset``: the sliding DC offset), each named only where
+    applied."""
+    done = [w for w, on in (("limited to the calibration range", limit), ("sliding DC offset", dc_offset)) if on]
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(7, 3.5))
         t = est["t"].to_numpy()
         _trace(ax, t, est["dx_raw"].to_numpy() * 1e3, lw=0.7, label="raw estimate")
-        _trace(ax, t, est["dx_hat"].to_numpy() * 1e3, lw=0.9, label="limited + sliding DC offset")
+        _trace(ax, t, est["dx_hat"].to_numpy() * 1e3, lw=0.9,
+               label="estimate, " + " + ".join(done) if done else "estimate (no post-processing configured)")
         if np.isfinite(est["dx_ref"]).any():
             _trace(ax, t, est["dx_ref"].to_numpy() * 1e3, lw=0.7, color="k", alpha=0.6, label="reference (laser)")
         ax.set_xlabel("time t [s]")

@@ -254,6 +254,13 @@ def _model_section(results_dir: Path) -> list[str]:
              f"<p>H(q): {kind}; calibrated on {ntr} "
              + ", ".join(f"<code>{html.escape(str(t))}</code>" for t in trials)
              + f" ({mode}); {fit}.</p>"]
+    # what the calibration warned about (a configured H(q) kind that could not be fitted, one that does not beat a
+    # straight line, a member that could not be applied): in the report, not only in a rule's log
+    cw = list(dict.fromkeys(str(w) for w in list(rep.get("warnings") or [])
+                            + list(d.get("fit_report", {}).get("warnings") or [])))
+    if cw:
+        parts.append("<p><strong>Calibration warnings:</strong></p><ul>"
+                     + "".join(f"<li>{html.escape(w)}</li>" for w in cw) + "</ul>")
     cal = d.get("calibration_trials") or []
     if cal:
         parts.append("<p>Sensing coefficients regressed on the calibration trials "

@@ -37,10 +37,12 @@ def trial_errors(est: pd.DataFrame, measurement: str, active: np.ndarray | None 
 
 
 def per_trial_table(estimates: Mapping[str, pd.DataFrame], meta: pd.DataFrame) -> pd.DataFrame:
-    """One row per trial and measured reference: ``trial, measurement, mean_abs_error, percent_of_range, role``."""
+    """One row per trial and measured reference: ``trial, measurement, mean_abs_error, percent_of_range, role``, in
+    the order of trials.csv (docs/data_format.md: the order of its rows sets the order of listings)."""
     meta = meta.set_index("trial") if "trial" in meta.columns else meta
     rows = []
-    for trial in sorted(estimates):
+    listed = [t for t in meta.index if t in estimates]
+    for trial in listed + sorted(t for t in estimates if t not in set(listed)):
         m = meta.loc[trial]
         measurement = str(m["reference"])
         err = trial_errors(estimates[trial], measurement)

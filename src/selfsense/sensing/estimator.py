@@ -1202,6 +1202,12 @@ class SelfSensingEstimator:
 
             table = _force_only_selected(sel.table, cfg.h_model)
             chosen = next(r for r in table if r["selected"])
+            if chosen["kind"] != cfg.h_model:   # every variant of the configured kind failed: said, not silent
+                why = "; ".join(sorted({str(r.get("status")) for r in table if r["kind"] == cfg.h_model})) or \
+                    "not among the candidates"
+                sel.warnings.append(f"H(q) on calibration trials {names}: the configured h_model {cfg.h_model!r} "
+                                    f"could not be fitted ({why}); {chosen['label']} is used instead")
+                log.warning(sel.warnings[-1])
             model = make_model(chosen["kind"], **chosen["params"])
             i0 = int(np.flatnonzero(free_mask)[0])
             if chosen["kind"] == "modified_pi":

@@ -361,8 +361,11 @@ def cv_candidate(model, kind: str, params, qs, ys, dt: float, extras, free, fold
         elif k == 1:
             rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), folds, free, thin, holds, bound=bound)
         else:
-            raise ValueError(f"records of {sum(lengths)} samples: the QP candidate is fitted on up to "
-                             f"200000 samples only")
+            # records longer than MAX_FIT_ROWS: the other candidates' rows are every k-th sample, but the QP fits
+            # its one free-tip segment at full rate anyway (its play states need every sample): the same contiguous
+            # blocks at full rate, scored on every (thin k)-th row as the strided candidates are
+            full = blocked_folds(lengths, n_blocks, rotate=rotate)
+            rms = _cv_qp(model, qs, ys, dt, _stack_extra(extras, lengths), full, free, thin * k, holds, bound=bound)
         status = "ok"
         if len(rms) < n_blocks:
             se = isinstance(bound, tuple) and not _beyond(rms, n_blocks, bound[0])   # stopped by the 1-SE rule
