@@ -665,3 +665,9 @@ def test_qp_candidate_is_cross_validated_on_records_above_max_fit_rows(monkeypat
     assert row["status"] == "ok" and np.all(np.isfinite(row["cv_rms_v"])), row["status"]
     assert row["selected"]
     np.testing.assert_allclose(row["cv_rms_v"], ref["cv_rms_v"], rtol=0.3)
+    # records beyond the QP's full-rate memory cap keep it out of the race, with a status that says why
+    import selfsense.hysteresis.models.select as S
+
+    monkeypatch.setattr(S, "QP_MAX_SAMPLES", 5000)
+    capped = {r["kind"]: r for r in select_h_model(qs, ys, DT, candidates=cands, n_blocks=3).table}["modified_pi"]
+    assert capped["status"].startswith("failed") and "memory" in capped["status"]

@@ -673,3 +673,23 @@ def test_daq_channel_names_without_a_channel_map_are_one_problem(dataset):
     errors, _ = check_dataset(dataset)
     mine = [str(e) for e in errors if e.file == "free_steps.csv"]
     assert len(mine) == 1 and "channel_map" in mine[0] and "'AI0_t'" in mine[0], mine
+
+
+def test_config_override_values_are_typed_as_snakemake_types_them():
+    """`selfsense run` checks the layered config against the schema before Snakemake: its `--config` values must have
+    the types Snakemake gives them (int, float, True/False, else YAML's base loader: strings), or the check would
+    refuse what Snakemake accepts (datasets=[2024], calibration={drift: off}) and accept what it refuses."""
+    from snakemake.cli import parse_config
+
+    from selfsense.cli.run import _parse_value
+
+    for v in ["3", "1e7", "0.5", "True", "false", "off", "[2024]", "[yes, 1.0]", "{drift: off}", "{cv_blocks: 3}",
+              "~", "null", "data/raw", "CLARABEL", ""]:
+        assert _parse_value(v) == parse_config([f"key={v}"])["key"], v
+
+
+def test_yaml_tag_without_constructor_keeps_its_own_message():
+    from selfsense.io.yamlsafe import YamlInputError, load_yaml_text
+
+    with pytest.raises(YamlInputError, match="constructor"):
+        load_yaml_text("!foo x: 1\n", "rig.yaml")

@@ -103,9 +103,14 @@ def _log_chunks(log: str | Path, rig, chunk: int):
         if any(fcol[c] not in header for c in _NEED):
             raise missing_error(header)
         use = [c for c in fcol if fcol[c] in header]
-        reader = pd.read_csv(log, usecols=[fcol[c] for c in use], chunksize=chunk,
-                             skiprows=list(range(skip)) + ([skip + 1] if units else []) or None,
-                             encoding="utf-8-sig", skipinitialspace=True)
+        try:
+            reader = pd.read_csv(log, usecols=[fcol[c] for c in use], chunksize=chunk,
+                                 skiprows=list(range(skip)) + ([skip + 1] if units else []) or None,
+                                 encoding="utf-8-sig", skipinitialspace=True)
+        except UnicodeDecodeError as e:   # pandas decodes its first buffer when the reader is made
+            raise ContractError(Problem(log.name, None, None, "UTF-8 text",
+                                        f"an undecodable byte {e.object[e.start:e.start + 1]!r} in the first "
+                                        "rows"), str(log)) from None
 
         def it():
             start = 0

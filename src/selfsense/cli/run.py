@@ -66,11 +66,25 @@ def _deep_update(base: dict, new: dict) -> dict:
 
 
 def _parse_value(v: str) -> Any:
-    """A ``--config`` value as Snakemake reads it: YAML (numbers, booleans, lists, mappings), else the string."""
-    try:
-        return yaml.safe_load(v)
-    except yaml.YAMLError:
-        return v
+    """A ``--config`` value as Snakemake reads it (``snakemake.cli.parse_config``): an int, else a float, else
+    ``True`` / ``False``, else YAML read with the base loader (lists and mappings of strings), else the string;
+    empty: None. The same types as Snakemake's, so that the schema check below refuses what Snakemake would, no more."""
+    if v == "":
+        return None
+
+    def boolean(x: str) -> bool:
+        if x in ("True", "False"):
+            return x == "True"
+        raise ValueError(x)
+
+    for parse in (int, float, boolean, lambda x: yaml.load(x, Loader=yaml.BaseLoader)):  # noqa: S506 (BaseLoader)
+        try:
+            out = parse(v)
+        except (ValueError, yaml.YAMLError):
+            continue
+        if out is not None and not callable(out):
+            return out
+    return v
 
 
 def _option_values(argv: list[str], names: tuple[str, ...]) -> list[str]:

@@ -141,8 +141,9 @@ def read_tdms(path: str | os.PathLike, channels: Mapping[str, str] | None = None
                                         + ", ".join(repr(g) for g in groups) + ")", "no such group"), str(path))
         search = [groups[group]] if group is not None else list(groups.values())
         if not any(True for g in search for _ in g.channels()):
-            raise ContractError(Problem(name, None, None, "a TDMS file with channels",
-                                        "no channel at all (not a TDMS file, or a corrupt one)"), str(path))
+            found = (f"no channel in group(s) {', '.join(repr(g.name) for g in search)}" if search else
+                     "no group and no channel (not a TDMS file, or a corrupt one)")
+            raise ContractError(Problem(name, None, None, "a TDMS file with channels", found), str(path))
         cols: dict[str, np.ndarray] = {}
         labels: dict[str, str] = {}
         probs: list[Problem] = []

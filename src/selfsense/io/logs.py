@@ -253,7 +253,8 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
                 k = int(np.flatnonzero(ok)[int(np.argmax(off))])
                 res = float(np.spacing(np.max(np.abs(t[idx]))))
                 hint = (f"; t reaches {np.max(np.abs(t[idx])):.3g} s, where float64 resolves only {res:.2g} s: "
-                        "subtract the first time stamp" if res > 0.01 * period else "")
+                        "subtract the first time stamp" if res > 0.01 * period else
+                        "; time stamps rounded to too few digits or stored as float32, or an irregular clock?")
                 probs.append(Problem(name, "t", int(rows[k]),
                                      f"steps within {LIMITS['step_spread']:.0%} of the sample period "
                                      f"{period:.6g} s (the estimate assumes a fixed rate)",
@@ -394,7 +395,8 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
         grp = cmap.group if cmap else None
         # the reference channel the trial needs must be there (named by its own error, not as a column of NaN);
         # the other may be absent even where the channel map names it (docs/data_format.md)
-        need = {"displacement": ("laser",), "force": ("load_cell",)}.get(str(reference), ())
+        need = None if reference is None else {"displacement": ("laser",), "force": ("load_cell",)}.get(
+            str(reference), ())
         try:
             if kind == "tdms":
                 raw = read_tdms(path, cols, group=grp, need=need)
@@ -484,7 +486,7 @@ def check_log(path: str | Path, rig: Rig | None = None, reference: str | None = 
 def _column_problems(name: str, found: list[str], wanted: tuple[str, ...]) -> list[Problem]:
     """Missing / misspelt / duplicated channel columns. Extra columns (other DAQ channels) are ignored with a
     note when every wanted column is present; if one is missing they are listed, as they may be its misspelling."""
-    if found and not any(w in found for w in wanted):
+    if found and not ({w.lower() for w in wanted} & {str(c).strip().lower() for c in found}):
         # none of the canonical names: the DAQ's own channel names, which rig.yaml's channel_map maps (one problem
         # instead of one per column)
         shown = ", ".join(repr(c) for c in found[:12]) + (" ..." if len(found) > 12 else "")

@@ -42,11 +42,9 @@ class NoAliasLoader(yaml.SafeLoader):
         if isinstance(node, yaml.MappingNode):
             seen: dict = {}
             for key_node, _ in node.value:
-                try:
-                    key = self.construct_object(key_node, deep=True)
-                    hash(key)
-                except Exception:  # noqa: BLE001 - an unhashable key: the base class raises its own error
+                if not isinstance(key_node, yaml.ScalarNode):   # a collection as key: the base class's own error
                     continue
+                key = self.construct_object(key_node)   # a tag without constructor raises its own error here
                 if key in seen:
                     raise yaml.constructor.ConstructorError(
                         None, None, f"duplicate key {key!r} (first at line {seen[key].line + 1}, again at line "
