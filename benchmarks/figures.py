@@ -110,6 +110,7 @@ DATES = {
     "gap_tip_20261224": "2026-12-06",
     "gap_tip_20261227": "2026-12-06",
     "gap_tip_20261228": "2026-12-06",
+    "gap_tip_20261232": "2026-12-07",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -249,6 +250,11 @@ COMMANDS = {
     "gap_tip_20261224": "selfsense gap blind --tip --n 80 --seed 20261224 --jobs 2 --out benchmarks/gap_tip/seed_20261224",
     "gap_tip_20261227": "selfsense gap blind --tip --n 80 --seed 20261227 --jobs 2 --out benchmarks/gap_tip/seed_20261227",
     "gap_tip_20261228": "selfsense gap blind --tip --n 80 --seed 20261228 --jobs 2 --out benchmarks/gap_tip/seed_20261228",
+    "gap_tip_20261232": "python benchmarks/tip_cases.py --seed 20261232 --cases 0,1,...,49 --jobs 2 --campaign none "
+                        "--out tip_0_49.md, the same for cases 50-99 and 100-149 (code 17728e2: the estimator and the "
+                        "diagnostic unchanged since), pooled by python benchmarks/tip_pool.py --records "
+                        "tip_0_49.jsonl.gz tip_50_99.jsonl.gz tip_100_149.jsonl.gz --out "
+                        "benchmarks/gap_tip/seed_20261232",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -1129,7 +1135,8 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261219": "(before the widened interval) ",
                   "gap_tip_20261221": "(before the lost-charge member) ",
                   "gap_tip_20261224": "(before the anchors stage) ",
-                  "gap_tip_20261227": "(the anchors stage not yet a fallback) "}
+                  "gap_tip_20261227": "(the anchors stage not yet a fallback) ",
+                  "gap_tip_20261228": "(the same code, 80 cases of seed 20261228) "}
 
 
 def gap_figures() -> list[Fig]:
@@ -1219,7 +1226,9 @@ def gap_figures() -> list[Fig]:
         ("benchmarks/gap_tip/seed_20261227", "gap_tip_20261227",
          "; the anchors stage's first contact, before it became a fallback (named wherever its campaign change reached "
          "the rule); the seed-20261228 rows are the current code"),
-        ("benchmarks/gap_tip/seed_20261228", "gap_tip_20261228", ""),
+        ("benchmarks/gap_tip/seed_20261228", "gap_tip_20261228",
+         "; the same code's 80 cases of this seed, the seed-20261232 rows are its larger campaign on a fresh seed"),
+        ("benchmarks/gap_tip/seed_20261232", "gap_tip_20261232", ""),
     ], "tip_scores.json")
     recs = []
     for folder, key, note in tiers:
