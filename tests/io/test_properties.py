@@ -92,3 +92,22 @@ def test_garbage_files_only_raise_contract_error(base, target, payload, keep_pre
             load_dataset(d)
         for pr in probs:
             assert "\n" not in str(pr) and "\r" not in str(pr)
+
+
+@SETTINGS
+@given(st.lists(st.integers(-3, 3), min_size=2, max_size=40))
+def test_time_order_rule_finds_the_first_duplicated_and_decreasing_step(steps):
+    """The one time-order rule of check_signals and ``selfsense estimate``: the first duplicated and the first
+    decreasing step and their counts, and nothing where time strictly increases."""
+    from selfsense.io.logs import time_steps_not_increasing
+
+    t = np.concatenate([[0.0], np.cumsum(np.asarray(steps, float))])
+    got = {what: (k, n) for what, k, n in time_steps_not_increasing(t)}
+    d = np.diff(t)
+    for what, mask in (("duplicated", d == 0), ("decreasing", d < 0)):
+        if mask.any():
+            assert got[what] == (int(np.flatnonzero(mask)[0]), int(mask.sum()))
+        else:
+            assert what not in got
+    strictly = np.all(d > 0)
+    assert (not got) == strictly

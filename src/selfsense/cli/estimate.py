@@ -156,43 +156,42 @@ def _log_chunks(log: str | Path, rig, chunk: int):
 
 def _checked(log: Path, fcol: dict, blocks):
     """The blocks of a log, each checked before the stream reads it, as the dataset contract checks a whole log
-    (:func:`selfsense.io.logs.check_signals`): every sample of ``t``, ``u_cmd``, ``v_shunt`` and ``relay`` finite,
-    ``relay`` 0 or 1 and ``t`` strictly increasing, across block boundaries too. A violation raises :class:`ContractError` naming the
-    file, its column and the 1-based data row (not a chunk's), before anything of that block is estimated: a NaN
-    would otherwise run through the charge integral and every later sample."""
+    (:func:`selfsense.io.logs.check_signals`, with its rules for the relay and the time order): every sample of
+    ``t``, ``u_cmd``, ``v_shunt`` and ``relay`` finite, ``relay`` 0 or 1 and ``t`` strictly increasing, across block
+    boundaries too. A violation raises :class:`ContractError` naming the file, its column and the 1-based data row
+    (not a chunk's), before anything of that block is estimated: a NaN would otherwise run through the charge
+    integral and every later sample."""
     from selfsense.io.errors import ContractError, Problem
+    from selfsense.io.logs import (
+        first_true,
+        relay_not_binary,
+        time_steps_not_increasing,
+    )
 
     start, prev = 0, None
     for block in blocks:
         probs = []
         for c in ("t", "u_cmd", "v_shunt", "relay"):
             x = block.get(c)
-            if x is None:
-                continue
-            bad = ~np.isfinite(x)
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
+            bad = None if x is None else first_true(~np.isfinite(x))
+            if bad is not None:
+                i, count = bad
                 probs.append(Problem(log.name, fcol[c], start + i + 1,
-                                     f"finite values in every sample ({int(bad.sum())} non-finite in rows "
+                                     f"finite values in every sample ({count} non-finite in rows "
                                      f"{start + 1}-{start + len(x)})", "NaN" if np.isnan(x[i]) else float(x[i])))
         r = block.get("relay")
-        if r is not None and not probs:
-            bad = (r != 0) & (r != 1)
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
-                probs.append(Problem(log.name, fcol["relay"], start + i + 1,
-                                     "0 or 1 (the relay channel cannot be scaled: log it as 0 / 1, e.g. threshold a "
-                                     "0 / 5 V signal)", float(r[i])))
+        bad = None if r is None or probs else relay_not_binary(r)
+        if bad is not None:
+            i = bad[0]
+            probs.append(Problem(log.name, fcol["relay"], start + i + 1,
+                                 "0 or 1 (the relay channel cannot be scaled: log it as 0 / 1, e.g. threshold a "
+                                 "0 / 5 V signal)", float(r[i])))
         t = block["t"]
         if len(t) and not probs:
             tt = t if prev is None else np.concatenate([[prev], t])
-            d = np.diff(tt)
-            bad = ~(d > 0)
-            if bad.any():
-                k = int(np.flatnonzero(bad)[0])
-                row = start + k + (1 if prev is None else 0) + 1
-                what = "duplicated" if d[k] == 0 else "decreasing"
-                probs.append(Problem(log.name, fcol["t"], row, "strictly increasing time",
+            first = 1 if prev is None else 0   # tt[k + 1] is data row start + k + first + 1 (1-based)
+            for what, k, count in sorted(time_steps_not_increasing(tt), key=lambda f: f[1])[:1]:   # the earliest
+                probs.append(Problem(log.name, fcol["t"], start + k + first + 1, "strictly increasing time",
                                      f"{what} time t = {tt[k + 1]:.9g} s after {tt[k]:.9g} s"))
         if probs:
             raise ContractError(probs, str(log))

@@ -174,6 +174,32 @@ def _runs_max(mask: np.ndarray) -> int:
     return int((ends - starts).max())
 
 
+def first_true(mask: np.ndarray) -> tuple[int, int] | None:
+    """``(index of the first True entry, number of True entries)`` of ``mask``, or None where none is True."""
+    hits = np.flatnonzero(mask)
+    return (int(hits[0]), int(hits.size)) if hits.size else None
+
+
+def relay_not_binary(r: np.ndarray) -> tuple[int, int] | None:
+    """The relay contract (docs/data_format.md): :func:`first_true` of the finite samples of ``r`` that are neither 0
+    nor 1 (a relay logged as 0 / 5 V, say; non-finite samples are the finiteness check's)."""
+    return first_true(np.isfinite(r) & (r != 0) & (r != 1))
+
+
+def time_steps_not_increasing(t: np.ndarray) -> list[tuple[str, int, int]]:
+    """The steps of the finite time stamps ``t`` that break strictly increasing time: ``(what, k, count)`` for
+    ``what`` = ``'duplicated'`` and then ``'decreasing'`` where any is, ``k`` the index of the earlier sample of the
+    first such step and ``count`` the number of such steps. One rule for :func:`check_signals` (a whole log) and
+    ``selfsense estimate`` (a log read block by block, the last time of the previous block prepended)."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    out = []
+    for what, mask in (("duplicated", dt == 0), ("decreasing", dt < 0)):
+        hit = first_true(mask)
+        if hit is not None:
+            out.append((what, hit[0], hit[1]))
+    return out
+
+
 def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | None = None,
                   name: str = "<log>") -> list[Problem]:
     """Physics-free plausibility checks of a canonical log frame (columns ``CANONICAL_COLUMNS``).
@@ -213,12 +239,9 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
         idx = np.flatnonzero(fin)
         dt = np.diff(t[idx])
         rows = idx[1:] + 1  # 1-based row of the later sample
-        for mask, what in ((dt == 0, "duplicated"), (dt < 0, "decreasing")):
-            if mask.any():
-                k = int(np.flatnonzero(mask)[0])
-                probs.append(Problem(name, "t", int(rows[k]),
-                                     f"strictly increasing time ({int(mask.sum())} {what} steps)",
-                                     f"{what} time t = {t[idx[k + 1]]:.9g} s after {t[idx[k]]:.9g} s"))
+        for what, k, count in time_steps_not_increasing(t[idx]):
+            probs.append(Problem(name, "t", int(rows[k]), f"strictly increasing time ({count} {what} steps)",
+                                 f"{what} time t = {t[idx[k + 1]]:.9g} s after {t[idx[k]]:.9g} s"))
         pos = dt[dt > 0]
         if pos.size:
             med = float(np.median(pos))
@@ -263,10 +286,10 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
     # --- relay ------------------------------------------------------------------------------------
     r = arr["relay"]
     rf = r[np.isfinite(r)]
-    bad = np.isfinite(r) & (r != 0) & (r != 1)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        probs.append(Problem(name, "relay", i + 1, f"0 or 1 ({int(bad.sum())} other values)", float(r[i])))
+    bad = relay_not_binary(r)
+    if bad is not None:
+        i, count = bad
+        probs.append(Problem(name, "relay", i + 1, f"0 or 1 ({count} other values)", float(r[i])))
     elif rf.size:
         if not (rf == 1).any():
             probs.append(Problem(name, "relay", 1, "relay = 1 (leads shorted) at the start of the log",
