@@ -7,6 +7,9 @@ columns stay the effect-free twin's).
     python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 \\
         --out benchmarks/gap_tip/amplifier_member.md
 
+Each finished case is appended to ``<out>.partial.jsonl`` at once; a run stopped part-way and started again with the
+same ``--out`` runs only the cases missing there.
+
 Used to rescore one effect family after a change made for it (here: the amplifier member of the voltage link) without
 rerunning the whole campaign (``selfsense gap blind --tip``); the cases are those the campaign drew for that family, so
 the numbers sit beside the campaign's own records (``benchmarks/gap_tip/tip_cases.jsonl.gz``).
@@ -18,7 +21,7 @@ import gzip
 import json
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -30,6 +33,38 @@ def _one(args):
 
     i, seed = args
     return run_tip_case(i, seed)
+
+
+def _run_cases(cases: list[int], seed: int, jobs: int, partial: Path) -> list[dict]:
+    """The records of ``cases``, in their order. Each record is appended to ``partial`` (one JSON line) as soon as
+    its case is done, so that a run stopped part-way keeps the cases it finished; a later run with the same ``--out``
+    takes the records of this seed found there instead of running those cases again (every case is a deterministic
+    function of (case, seed), so a record kept is the one a new run would make)."""
+    done: dict[int, dict] = {}
+    if partial.exists():
+        for line in partial.read_text().splitlines():
+            try:
+                r = json.loads(line)
+            except json.JSONDecodeError:   # a line cut off where the run was stopped: that case runs again
+                continue
+            if r["seed"] == seed and r["case"] in cases:
+                done[r["case"]] = r
+        if done:
+            print(f"tip_cases: {len(done)} cases taken from {partial}", file=sys.stderr)
+    todo = [i for i in cases if i not in done]
+    if todo:
+        partial.parent.mkdir(parents=True, exist_ok=True)
+        cut = partial.exists() and partial.stat().st_size and not partial.read_bytes().endswith(b"\n")
+        with ProcessPoolExecutor(max_workers=max(1, jobs)) as ex, open(partial, "a") as fh:
+            if cut:   # the line cut off stays a line of its own
+                fh.write("\n")
+            futs = {ex.submit(_one, (i, seed)): i for i in todo}
+            for f in as_completed(futs):
+                r = f.result()
+                done[r["case"]] = r
+                fh.write(json.dumps(r, default=float, sort_keys=True) + "\n")
+                fh.flush()
+    return [done[i] for i in cases]
 
 
 def main(argv=None) -> int:
@@ -55,8 +90,7 @@ def main(argv=None) -> int:
         with gzip.open(a.records, "rt") as fh:
             recs = [r for r in map(json.loads, fh) if r["case"] in cases]
     else:
-        with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as ex:
-            recs = list(ex.map(_one, [(i, a.seed) for i in cases]))
+        recs = _run_cases(cases, a.seed, a.jobs, Path(a.out).with_suffix(".partial.jsonl"))
     from selfsense.gap.blind import _truth
 
     rows = ["| case | family | effect | named top-1 | Table 3 mean, case [points] | effect-free twin | cost (case - "

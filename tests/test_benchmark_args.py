@@ -1,6 +1,7 @@
 """The seed / case lists of the benchmark scripts (``benchmarks/_args.py``, shared by six of them) and their BLAS pinning."""
 import argparse
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -87,6 +88,32 @@ def test_tip_pool_writes_the_committed_tier_and_refuses_parts_that_do_not_make_o
     other = [dict(r, seed=1) for r in recs[80:]]
     with pytest.raises(SystemExit, match="several seeds"):
         pool.main(["--records", str(first), part("seed.jsonl.gz", other), "--out", str(out), "--command", "x"])
+
+
+def _fake_tip_case(args):
+    i, seed = args
+    return {"case": i, "seed": seed, "made": "now"}
+
+
+def test_tip_cases_keeps_finished_cases_and_resumes_without_running_them_again(tmp_path, monkeypatch):
+    """``benchmarks/tip_cases.py`` appends each finished case to ``<out>.partial.jsonl`` at once; a run started again
+    takes the cases of its seed found there (a line cut off by the stop is run again) and runs only the others."""
+    import json
+
+    spec = importlib.util.spec_from_file_location("tip_cases", ROOT / "benchmarks" / "tip_cases.py")
+    tc = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "tip_cases", tc)
+    spec.loader.exec_module(tc)
+    monkeypatch.setattr(tc, "_one", _fake_tip_case)
+    partial = tmp_path / "part.partial.jsonl"
+    kept = [{"case": 0, "seed": 7, "made": "before"}, {"case": 1, "seed": 8, "made": "before"}]
+    partial.write_text("".join(json.dumps(r) + "\n" for r in kept) + '{"case": 2, "se')
+    recs = tc._run_cases([0, 1, 2], 7, 2, partial)
+    assert [(r["case"], r["made"]) for r in recs] == [(0, "before"), (1, "now"), (2, "now")]
+    lines = partial.read_text().splitlines()
+    assert lines[2] == '{"case": 2, "se'
+    assert sorted(json.loads(x)["case"] for x in lines[3:]) == [1, 2]   # only the missing cases appended
+    assert tc._run_cases([0, 1, 2], 7, 2, partial) == recs and len(partial.read_text().splitlines()) == 5
 
 
 def test_every_script_that_runs_cases_in_workers_pins_one_blas_thread():
