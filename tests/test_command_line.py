@@ -153,7 +153,14 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
     (tmp_path / "config.yaml").write_text("datasets: [mine]\n")
     assert cli.main(["run", "-c", "1", "-n"]) == 0
     args = calls[0][0]
-    assert "--cores" not in args and args[args.index("--configfile") + 1] == str(tmp_path / "config.yaml")
+    assert "--cores" not in args and f"--configfile={tmp_path / 'config.yaml'}" in args
+    # a target first: Snakemake's own parser must see it as a target, not as a second config file
+    from snakemake.cli import get_argument_parser
+
+    calls.clear()
+    assert cli.main(["run", "matlab", "-n"]) == 0
+    parsed = get_argument_parser().parse_args(calls[0][0][calls[0][0].index("snakemake") + 1:])
+    assert parsed.targets == ["matlab"] and [str(p) for p in parsed.configfile] == [str(tmp_path / "config.yaml")]
 
 
 @pytest.mark.parametrize("args,env,local", [

@@ -11,7 +11,8 @@ Every option is handed to Snakemake unchanged (``snakemake --help`` lists them),
 * ``--directory``: the current directory, so ``raw_dir`` / ``results_dir`` and every relative path of the
   config resolve from where you are (``data/raw/<dataset>`` and ``results/<dataset>`` by default);
 * ``--cores 2`` unless ``--cores`` / ``--jobs`` / ``--profile`` / ``--executor`` is given;
-* ``--configfile config.yaml`` if the working directory holds a ``config.yaml`` and none is given.
+* ``--configfile=config.yaml`` if the working directory holds a ``config.yaml`` and none is given (the ``=``
+  form, so that targets may come first: ``selfsense run matlab``).
 
 Configuration is layered: the packaged defaults (``selfsense run --print-config``), then each ``--configfile`` in
 order (a partial file, e.g. only ``datasets: [mine]``, is enough), then ``--config key=value`` overrides.
@@ -154,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     if not _has_option(argv, _CORES_FLAGS):
         extra += ["--cores", "2"]
     if not _has_option(argv, ("--configfile", "--configfiles")) and (workdir / "config.yaml").is_file():
-        extra += ["--configfile", str(workdir / "config.yaml")]
+        # the "=" form: one value, so a target the user gives first (``selfsense run matlab``) stays a target
+        # (after ``--configfile PATH`` Snakemake would read every following word as another config file)
+        extra += [f"--configfile={workdir / 'config.yaml'}"]
     for f in _option_values(argv, ("--configfile", "--configfiles")):
         if not Path(f).is_file():
             hint = ("; Snakemake reads every word after --configfile as a config file, so put targets first: "
