@@ -7,8 +7,9 @@ columns stay the effect-free twin's).
     python benchmarks/tip_cases.py --seed 4711 --cases 60,44,12,38,66,43,13,5,70 --jobs 2 \\
         --out benchmarks/gap_tip/amplifier_member.md
 
-Each finished case is appended to ``<out>.partial.jsonl`` at once; a run stopped part-way and started again with the
-same ``--out`` runs only the cases missing there.
+Each finished case is appended to ``<out>.partial.jsonl`` at once; a run stopped part-way (or with a failed case)
+and started again with the same ``--out`` and the same code runs only the cases missing there. A completed run
+deletes the file, so a later run (after a code change, say) computes every case again.
 
 Used to rescore one effect family after a change made for it (here: the amplifier member of the voltage link) without
 rerunning the whole campaign (``selfsense gap blind --tip``); the cases are those the campaign drew for that family, so
@@ -51,19 +52,28 @@ def _run_cases(cases: list[int], seed: int, jobs: int, partial: Path) -> list[di
                 done[r["case"]] = r
         if done:
             print(f"tip_cases: {len(done)} cases taken from {partial}", file=sys.stderr)
-    todo = [i for i in cases if i not in done]
+    todo = list(dict.fromkeys(i for i in cases if i not in done))   # a case given twice runs once
     if todo:
         partial.parent.mkdir(parents=True, exist_ok=True)
         cut = partial.exists() and partial.stat().st_size and not partial.read_bytes().endswith(b"\n")
+        failed = []
         with ProcessPoolExecutor(max_workers=max(1, jobs)) as ex, open(partial, "a") as fh:
             if cut:   # the line cut off stays a line of its own
                 fh.write("\n")
             futs = {ex.submit(_one, (i, seed)): i for i in todo}
             for f in as_completed(futs):
-                r = f.result()
+                try:
+                    r = f.result()
+                except Exception as exc:   # noqa: BLE001 -- the other cases are still kept; raised below
+                    failed.append((futs[f], exc))
+                    continue
                 done[r["case"]] = r
                 fh.write(json.dumps(r, default=float, sort_keys=True) + "\n")
                 fh.flush()
+        if failed:
+            case, exc = min(failed, key=lambda x: x[0])
+            raise RuntimeError(f"tip_cases: {len(failed)} case(s) failed ({', '.join(str(c) for c, _ in failed)}); "
+                               f"the others are kept in {partial}") from exc
     return [done[i] for i in cases]
 
 
@@ -137,6 +147,8 @@ def main(argv=None) -> int:
     body = "".join(json.dumps(r, default=float, sort_keys=True) + "\n" for r in recs).encode()
     with open(Path(a.out).with_suffix(".jsonl.gz"), "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
         fh.write(body)
+    # the run is complete: its records are in the outputs, and a later run (after a code change, say) starts afresh
+    Path(a.out).with_suffix(".partial.jsonl").unlink(missing_ok=True)
     print(text)
     return 0
 

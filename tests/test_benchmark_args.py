@@ -92,6 +92,8 @@ def test_tip_pool_writes_the_committed_tier_and_refuses_parts_that_do_not_make_o
 
 def _fake_tip_case(args):
     i, seed = args
+    if i == 13:
+        raise ValueError("case 13 fails")
     return {"case": i, "seed": seed, "made": "now"}
 
 
@@ -114,6 +116,11 @@ def test_tip_cases_keeps_finished_cases_and_resumes_without_running_them_again(t
     assert lines[2] == '{"case": 2, "se'
     assert sorted(json.loads(x)["case"] for x in lines[3:]) == [1, 2]   # only the missing cases appended
     assert tc._run_cases([0, 1, 2], 7, 2, partial) == recs and len(partial.read_text().splitlines()) == 5
+    # a failed case: the others are kept before the error is raised; a case given twice runs once
+    with pytest.raises(RuntimeError, match=r"1 case\(s\) failed \(13\)"):
+        tc._run_cases([4, 13, 5, 5], 7, 2, partial)
+    lines = partial.read_text().splitlines()
+    assert sorted(json.loads(x)["case"] for x in lines[5:]) == [4, 5]
 
 
 def test_every_script_that_runs_cases_in_workers_pins_one_blas_thread():

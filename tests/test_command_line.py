@@ -161,6 +161,11 @@ def test_run_passes_options_untouched(tmp_path, monkeypatch, capsys):
     assert cli.main(["run", "matlab", "-n"]) == 0
     parsed = get_argument_parser().parse_args(calls[0][0][calls[0][0].index("snakemake") + 1:])
     assert parsed.targets == ["matlab"] and [str(p) for p in parsed.configfile] == [str(tmp_path / "config.yaml")]
+    # a target after an option of one value is a target, not a second value (here: not the working directory)
+    assert pipeline_cli._option_values(["--directory", "sub", "matlab"], ("--directory", "-d"), many=False) == ["sub"]
+    calls.clear()
+    assert cli.main(["run", "--directory", ".", "matlab", "-n"]) == 0
+    assert get_argument_parser().parse_args(calls[0][0][calls[0][0].index("snakemake") + 1:]).targets == ["matlab"]
 
 
 @pytest.mark.parametrize("args,env,local", [

@@ -111,3 +111,25 @@ def test_time_order_rule_finds_the_first_duplicated_and_decreasing_step(steps):
             assert what not in got
     strictly = np.all(d > 0)
     assert (not got) == strictly
+
+
+@pytest.mark.parametrize("t2,row,what", [
+    ([0.3, 0.3, 0.25, 0.4], 5, "duplicated"),    # a repeat, then a step back: the repeat (earlier) is named
+    ([0.3, 0.25, 0.25, 0.4], 5, "decreasing"),   # a step back, then a repeat: the step back
+    ([0.2, 0.3, 0.4, 0.5], 4, "duplicated"),     # across the block boundary: row 4 repeats row 3's time
+])
+def test_estimate_block_check_names_the_earliest_bad_time_step_with_its_file_wide_row(t2, row, what):
+    """``selfsense estimate`` checks a log block by block: the first time step that does not increase is named
+    with its 1-based row in the file, also where it spans two blocks."""
+    from selfsense.cli.estimate import _checked
+    from selfsense.io.errors import ContractError
+
+    cols = {c: c for c in ("t", "u_cmd", "v_shunt", "relay")}
+    blocks = [{"t": np.array([0.0, 0.1, 0.2]), "u_cmd": np.zeros(3), "v_shunt": np.zeros(3), "relay": np.ones(3)},
+              {"t": np.array(t2), "u_cmd": np.zeros(4), "v_shunt": np.zeros(4), "relay": np.zeros(4)}]
+    it = _checked(Path("log.parquet"), cols, iter(blocks))
+    next(it)
+    with pytest.raises(ContractError) as e:
+        next(it)
+    msg = str(e.value)
+    assert f"row {row}" in msg and what in msg and "log.parquet" in msg, msg

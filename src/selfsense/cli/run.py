@@ -88,8 +88,9 @@ def _parse_value(v: str) -> Any:
     return v
 
 
-def _option_values(argv: list[str], names: tuple[str, ...]) -> list[str]:
-    """Values of an option that takes one or more values (``--configfile a b``, ``--configfile=a``)."""
+def _option_values(argv: list[str], names: tuple[str, ...], many: bool = True) -> list[str]:
+    """Values of an option that takes one or more values (``--configfile a b``, ``--configfile=a``); with ``many``
+    False, of an option that takes one (``--directory sub matlab``: ``sub``, the target after it is not a value)."""
     out: list[str] = []
     i = 0
     while i < len(argv):
@@ -106,6 +107,8 @@ def _option_values(argv: list[str], names: tuple[str, ...]) -> list[str]:
         while i < len(argv) and not argv[i].startswith("-"):
             out.append(argv[i])
             i += 1
+            if not many:
+                break
     return out
 
 
@@ -145,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         print(yaml.safe_dump(default_config(), sort_keys=False), end="")
         return 0
     cwd = Path.cwd()
-    wd_opt = _option_values(argv, ("--directory", "-d"))
+    wd_opt = _option_values(argv, ("--directory", "-d"), many=False)
     workdir = (cwd / wd_opt[-1]).resolve() if wd_opt else cwd
     extra: list[str] = []
     if not _has_option(argv, ("--snakefile", "-s")):
@@ -268,7 +271,7 @@ def runs_locally(args: list[str], env: dict | None = None) -> bool:
     env = os.environ if env is None else env
     if _has_option(args, ("--profile", "--workflow-profile")) or env.get("SNAKEMAKE_PROFILE"):
         return False
-    return all(v in LOCAL_EXECUTORS for v in _option_values(args, ("--executor", "-e")))
+    return all(v in LOCAL_EXECUTORS for v in _option_values(args, ("--executor", "-e"), many=False))
 
 
 def snakemake_command(args: list[str], env: dict | None = None) -> list[str]:
