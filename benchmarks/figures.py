@@ -110,7 +110,7 @@ DATES = {
     "gap_tip_20261224": "2026-12-06",
     "gap_tip_20261227": "2026-12-06",
     "gap_tip_20261228": "2026-12-06",
-    "gap_tip_20261232": "2026-12-07",
+    "gap_tip_20261232": "2026-12-08",
     "gap_tip_20261217_160": "2026-12-05",
     "gap_joint_20261203": "2026-12-02",
     "gap_joint_20261203_rule": "2026-12-02",
@@ -251,10 +251,11 @@ COMMANDS = {
     "gap_tip_20261227": "selfsense gap blind --tip --n 80 --seed 20261227 --jobs 2 --out benchmarks/gap_tip/seed_20261227",
     "gap_tip_20261228": "selfsense gap blind --tip --n 80 --seed 20261228 --jobs 2 --out benchmarks/gap_tip/seed_20261228",
     "gap_tip_20261232": "python benchmarks/tip_cases.py --seed 20261232 --cases 0,1,...,49 --jobs 2 --campaign none "
-                        "--out tip_0_49.md, the same for cases 50-99 and 100-149 (code 17728e2: the estimator and the "
-                        "diagnostic unchanged since), pooled by python benchmarks/tip_pool.py --records "
-                        "tip_0_49.jsonl.gz tip_50_99.jsonl.gz tip_100_149.jsonl.gz --out "
-                        "benchmarks/gap_tip/seed_20261232",
+                        "--out tip_0_49.md, the same for cases 50-99, 100-149 and 150-199, and cases 200-224 of a run "
+                        "of 200-299 stopped there (tip_cases.py keeps each finished case in tip_200_299.partial.jsonl; "
+                        "code 17728e2: the estimator and the diagnostic unchanged since), pooled by python "
+                        "benchmarks/tip_pool.py --records tip_0_49.jsonl.gz tip_50_99.jsonl.gz tip_100_149.jsonl.gz "
+                        "tip_150_199.jsonl.gz tip_200_224.jsonl.gz --out benchmarks/gap_tip/seed_20261232",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
@@ -1237,20 +1238,23 @@ def gap_figures() -> list[Fig]:
         T = lambda *a, key=key, tsrc=tsrc: Fig(*a, source=tsrc, command=COMMANDS[key], date=DATES[key])  # noqa: E731
         seed = COMMANDS[key].split("--seed ")[1].split()[0]
         sup = " (superseded)" if "superseded" in note else ""
+        recs = [json.loads(x) for x in gzip.open(ROOT / folder / "tip_cases.jsonl.gz", "rt")]
+        costs = cost_table(recs)
+        # the target is per effect family: met only where every family with a costly case names >= 90 % of them
+        every_family = all(r["named"] >= 0.9 * r["costly"] for r in costs if r["costly"])
         out.append(T(f"gap diagnostic, tip tier, seed {seed} ({t['n']} single-effect cases with their effect-free "
                      f"twins, a seed not used before): effects that cost >= 3 points of Table 3 and are named{note}",
                      f"{t['n_costly_named']} of {t['n_costly']}", ">= 90 % per effect family",
-                     _met(t["n_costly"] > 0 and t["n_costly_named"] >= 0.9 * t["n_costly"]) + sup))
+                     _met(t["n_costly"] > 0 and every_family) + sup))
         out.append(T(f"gap diagnostic, tip tier, seed {seed}: median relative error of the predicted tip shrink "
                      f"({t['n_scored']} cases named right with a real tip consequence); true shrink inside the 90 % "
                      f"interval{note}", f"{t['median_tip_shrink_error']:.2f}; {t['interval_coverage']:.2f}",
                      "<= 0.25; >= 0.80",
                      _met(t["median_tip_shrink_error"] <= 0.25 and t["interval_coverage"] >= 0.8) + sup))
-        recs = [json.loads(x) for x in gzip.open(ROOT / folder / "tip_cases.jsonl.gz", "rt")]
         if note and key not in TIP_PER_EFFECT:
             continue
         how = {r["effect"]: r for r in shrink_by_effect(recs)}
-        for r in cost_table(recs):
+        for r in costs:
             h = how[r["effect"]]
             if not (r["costly"] or h["scored"]):
                 continue
