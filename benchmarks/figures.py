@@ -1140,6 +1140,11 @@ TIP_PER_EFFECT = {"gap_tip_14142": "(the PI stand-in) ", "gap_tip_20261202": "(b
                   "gap_tip_20261228": "(the same code, 80 cases of seed 20261228) "}
 
 
+def _named_enough(row: dict) -> bool:
+    """The tip tier's naming target for one effect family (a row of ``cost_table``): >= 90 % of its costly cases named."""
+    return row["named"] >= 0.9 * row["costly"]
+
+
 def gap_figures() -> list[Fig]:
     out = []
     campaigns = [(f"{folder}/scores.json", key, note) for folder, key, note in _generations([
@@ -1241,7 +1246,7 @@ def gap_figures() -> list[Fig]:
         recs = [json.loads(x) for x in gzip.open(ROOT / folder / "tip_cases.jsonl.gz", "rt")]
         costs = cost_table(recs)
         # the target is per effect family: met only where every family with a costly case names >= 90 % of them
-        every_family = all(r["named"] >= 0.9 * r["costly"] for r in costs if r["costly"])
+        every_family = all(_named_enough(r) for r in costs if r["costly"])
         out.append(T(f"gap diagnostic, tip tier, seed {seed} ({t['n']} single-effect cases with their effect-free "
                      f"twins, a seed not used before): effects that cost >= 3 points of Table 3 and are named{note}",
                      f"{t['n_costly_named']} of {t['n_costly']}", ">= 90 % per effect family",
@@ -1258,7 +1263,7 @@ def gap_figures() -> list[Fig]:
             h = how[r["effect"]]
             if not (r["costly"] or h["scored"]):
                 continue
-            ok_named = r["named"] >= 0.9 * r["costly"]
+            ok_named = _named_enough(r)
             ok_how = not h["scored"] or h["median_error"] <= 0.35
             out.append(T(f"gap diagnostic, tip tier, seed {seed}, {r['effect']}: cases costing >= 3 points named "
                          + (TIP_PER_EFFECT.get(key, "") if note else "")
