@@ -142,6 +142,15 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
     # the mixed-drive validation trials (minor loops and holds the sine calibration never shows) on their own
     mixed = pt[(pt["role"] == "validation") & (pt["signal"] == "mixed")]
     mixed_pct = {m: float(g["percent_of_range"].mean()) for m, g in mixed.groupby("measurement")}
+    # which validation trials rely on drive features the calibration lacks (selfsense.report.coverage: V, q and the
+    # relay only; read by no fit)
+    from selfsense.report.coverage import coverage_table
+
+    try:
+        cov = coverage_table(sigs, meta.reset_index())
+        lacks = {r.trial: r.lacks for r in cov.itertuples() if r.role == "validation"}
+    except ValueError as exc:   # recorded, not a failed device: the scores above do not depend on it
+        lacks = {"error": str(exc)}
     hrep = est.fit_report_.get("hysteresis", {})
     hcost = est.fit_report_.get("h_error_cost", {})
     rec.update({
@@ -150,6 +159,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "force_pct": float(t3.loc["force", "percent_of_range"]),
         "mixed_displacement_pct": mixed_pct.get("displacement", float("nan")),
         "mixed_force_pct": mixed_pct.get("force", float("nan")),
+        "coverage_lacks": lacks,
         "h_model": str(hrep.get("h_model", "")),
         "h_selected": str(hrep.get("selected", hrep.get("h_model", ""))),
         "h_fit_rms_v": float(hrep.get("rms_v", float("nan"))),

@@ -76,6 +76,11 @@ def test_contract_outputs_exist(two_runs):
         assert list(df.columns) == ["t", "dx_hat", "f_hat", "dx_ref", "f_ref"]
         assert df[["dx_hat", "f_hat"]].notna().all().all(), f"NaN reached estimate {p.name}"
     assert (res / "report.html").stat().st_size > 10_000
+    # the drive coverage of the calibration: one row per trial in trials.csv order, the calibration trials define it
+    cov = pd.read_csv(res / "tables" / "coverage.csv", keep_default_na=False)
+    assert list(cov["trial"]) == list(pd.read_csv(SAMPLE / "trials.csv")["trial"])
+    assert (cov.loc[cov["role"] == "calibration", "lacks"] == "").all()
+    assert "Drive coverage of the calibration" in (res / "report.html").read_text()
     model = json.loads((res / "model" / "sensing.json").read_text())
     assert {"A1", "A2", "A3"} <= set(model["coef"])
     # the charge resolution of every trial (reference-free): the sample's 16-bit shunt channel is dithered by its
@@ -178,7 +183,7 @@ def test_snakemake_report_holds_every_table_and_figure_with_its_caption(two_runs
     names = {Path(n).name for n in zipfile.ZipFile(out).namelist()}
     figures = {p.name for p in (res / "figures").glob("*.png")}
     assert len(figures) >= 4 and figures <= names, figures - names
-    assert {"table3.csv", "per_trial.csv", "modes.csv", "report.html"} <= names
+    assert {"table3.csv", "per_trial.csv", "coverage.csv", "modes.csv", "report.html"} <= names
     if (res / "gap").is_dir():
         assert {p.name for p in (res / "gap").glob("*.png")} | {"stages.csv", "effects.csv", "candidates.csv"} <= names
     page = zipfile.ZipFile(out).read("report/report.html").decode()

@@ -149,6 +149,34 @@ rule score:
         stages.run_job("score", input, output, params, wildcards, log)
 
 
+rule coverage:
+    input:
+        # reference-free: V, q and the relay of every trial (the per-trial errors only set side by side in the table)
+        signals=per_trial("signals", all_trials),
+        per_trial=res("{dataset}", "tables", "per_trial.csv"),
+    output:
+        csv=report(
+            res("{dataset}", "tables", "coverage.csv"),
+            caption="../report/coverage.rst",
+            category="Accuracy",
+            labels={"dataset": "{dataset}", "table": "drive coverage"},
+        ),
+        md=res("{dataset}", "tables", "coverage.md"),
+    log:
+        res("{dataset}", "logs", "coverage.log"),
+    benchmark:
+        res("{dataset}", "benchmarks", "coverage.tsv")
+    threads: 1
+    resources:
+        mem_mb=800,
+        runtime=10,
+    params:
+        dataset_dir=dataset_dir,
+        out_dir=lambda w: res(w.dataset, "tables"),
+    run:
+        stages.run_job("coverage", input, output, params, wildcards, log)
+
+
 rule compare_modes:
     input:
         # not the estimates: the pipeline model's own row is estimated in the job (~1 s), so that it runs beside

@@ -478,7 +478,7 @@ def build_report(dataset_dir: Path, results_dir: Path, failed: list[str], config
                      + "".join(f"<li>{html.escape(f)}</li>" for f in failed) + "</ul>")
     tables = results_dir / "tables"
     parts.append("<h2>Accuracy (thesis Table 3 / paper Table II)</h2>")
-    for md in ("table3.md", "modes.md", "per_trial.md"):
+    for md in ("table3.md", "modes.md", "per_trial.md", "coverage.md"):
         p = tables / md
         if p.exists():
             parts.append(markdown_to_html(p.read_text(), 3))
