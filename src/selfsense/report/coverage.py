@@ -133,7 +133,7 @@ def _holds(t: np.ndarray, V: np.ndarray, dt: float, v_span: float) -> list[float
     """Durations [s] of the holds of V (module docstring), a rest at the start of the record left out."""
     from selfsense.signals import true_runs
 
-    k = max(1, int(round(HOLD_BLOCK_S / dt)))
+    k = max(1, round(HOLD_BLOCK_S / dt))
     b, tb = _block_means(V, k), _block_means(t, k)
     if len(b) < 3:
         return []
@@ -170,7 +170,7 @@ def drive_features(df: pd.DataFrame, v_band: float, name: str = "trial", v_span:
         raise ValueError(f"drive coverage: trial {name!r} has {len(t)} finite samples with the relay open "
                          "(expected at least 10)")
     dt = float(np.median(np.diff(t)))
-    k = max(1, int(round(BLOCK_S / dt))) if dt > 0 else 1
+    k = max(1, round(BLOCK_S / dt)) if dt > 0 else 1
     vb, tb, qb = _block_means(V, k), _block_means(t, k), _block_means(q, k)
     pts = _turning_points(vb, v_band)
     amps = np.abs(np.diff(vb[pts]))
