@@ -221,17 +221,23 @@ def score(dataset_dir: str | Path, estimate_paths: Mapping[str, str | Path], out
 
 
 def coverage(dataset_dir: str | Path, signal_paths: Mapping[str, str | Path], per_trial_csv: str | Path | None,
-             out_dir: str | Path) -> pd.DataFrame:
+             out_dir: str | Path, model_json: str | Path | None = None) -> pd.DataFrame:
     """The drive coverage of the calibration (:mod:`selfsense.report.coverage`): ``coverage.csv`` and ``coverage.md``
     in ``out_dir``; with the score rule's ``per_trial.csv``, the validation errors with and without each feature the
-    calibration lacks."""
+    calibration lacks; with the fitted model (``sensing.json``), which lacking holds its hold rows fitted."""
+    import json
+
     from selfsense.report.coverage import coverage_markdown, coverage_table
 
     out_dir = Path(out_dir)
     cov = coverage_table(dict(signal_paths), _meta(dataset_dir).reset_index())
     pt = pd.read_csv(per_trial_csv) if per_trial_csv is not None else None
+    hold_rows = None
+    if model_json is not None:
+        hold_rows = json.loads(Path(model_json).read_text()).get("fit_report", {}).get("hysteresis", {}).get(
+            "hold_rows")
     sio.write_text_atomic(cov.to_csv(index=False, float_format="%.6g"), out_dir / "coverage.csv")
-    sio.write_text_atomic(coverage_markdown(cov, pt), out_dir / "coverage.md")
+    sio.write_text_atomic(coverage_markdown(cov, pt, hold_rows), out_dir / "coverage.md")
     return cov
 
 
@@ -607,7 +613,7 @@ _JOBS = {
     "regress_coefficients": lambda i, o, p, w: regress(p.dataset_dir, by_trial(i.signals), i.hysteresis, o[0]),
     "estimate": lambda i, o, p, w: estimate(p.dataset_dir, i.signals, i.model, o.estimate, full_out=o.internals),
     "score": lambda i, o, p, w: score(p.dataset_dir, by_trial(i.estimates), p.out_dir),
-    "coverage": lambda i, o, p, w: coverage(p.dataset_dir, by_trial(i.signals), i.per_trial, p.out_dir),
+    "coverage": lambda i, o, p, w: coverage(p.dataset_dir, by_trial(i.signals), i.per_trial, p.out_dir, i.model),
     "report": lambda i, o, p, w: print(report(p.dataset_dir, p.results_dir, o[0], config=p.run_config)),
     "export_matlab": lambda i, o, p, w: export_matlab(p.dataset_dir, w.trial, i.signals, i.internals, i.model,
                                                       o.mat, o.csv),

@@ -149,6 +149,11 @@ def test_the_markdown_sets_the_validation_errors_side_by_side():
     assert "| covered by the calibration | 1, 1.00 % | 0, - |" in md
     assert "| with holds longer than any calibration hold | 1, 3.00 % | 1, 5.00 % |" in md
     assert "-0.0" not in md
+    # the fitted model's hold rows took in the holds of "hold" (not of "hold2"): said where they are lacking
+    md = coverage_markdown(cov, pt, {"applied": True, "trials": ["cal_free", "hold"]})
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in md.splitlines() if line.startswith("| hold")}
+    assert "hold rows" in rows["hold"] and "hold rows" not in rows["hold2"]
+    assert "hold rows" not in coverage_markdown(cov, pt, {"applied": False, "trials": ["hold"]})
 
 
 def test_bad_input_is_named():

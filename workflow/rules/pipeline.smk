@@ -151,9 +151,11 @@ rule score:
 
 rule coverage:
     input:
-        # reference-free: V, q and the relay of every trial (the per-trial errors only set side by side in the table)
+        # reference-free: V, q and the relay of every trial (the per-trial errors only set side by side in the table,
+        # the model read for which holds its hold rows fitted)
         signals=per_trial("signals", all_trials),
         per_trial=res("{dataset}", "tables", "per_trial.csv"),
+        model=res("{dataset}", "model", "sensing.json"),
     output:
         csv=report(
             res("{dataset}", "tables", "coverage.csv"),

@@ -269,10 +269,14 @@ def _num(x, fmt: str) -> str:
     return s[1:] if s.startswith("-") and float(s) == 0 else s
 
 
-def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None) -> str:
+def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None,
+                      hold_rows: Mapping | None = None) -> str:
     """The coverage table for people, and, with the score rule's ``per_trial`` table, the validation trials' mean
     Table 3 error (% of range) with and without each feature the calibration lacks (a description of this run,
-    not a fit: nothing is chosen on it)."""
+    not a fit: nothing is chosen on it). ``hold_rows``: the fitted model's hold-row record (``fit_report_
+    ["hysteresis"]["hold_rows"]``, docs/method.md 6b'): where it was applied, a trial's holds that the calibration
+    lacks are marked as fitted from that trial's own V and Q (the creep of H(q) within them, not its level)."""
+    held = set((hold_rows or {}).get("trials") or ()) if (hold_rows or {}).get("applied") else set()
     cal = cov[cov["role"] == "calibration"]
     lines = ["### Drive coverage of the calibration", "",
              f"What the calibration trials ({', '.join(cal['trial'])}) show H(q), and which drive features of the "
@@ -284,10 +288,13 @@ def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None) 
              "smallest reversal [V] | longest hold [s] | excursion durations [s] | calibration lacks |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in cov.iterrows():
-        lacks = "; ".join(FEATURES[k] for k in str(r["lacks"]).split(";") if k) or \
+        lacks = "; ".join(FEATURES[k] + (" (their creep fitted from this trial's V and Q: hold rows)"
+                                          if k == "holds" and r["trial"] in held else "")
+                          for k in str(r["lacks"]).split(";") if k) or \
             ("(defines the coverage)" if r["role"] == "calibration" else "nothing")
         lines.append(f"| {r['trial']} | {r['role']} | {r['duration_s']:.1f} | {_num(r['v_lo_v'], '.1f')} to "
-                     f"{_num(r['v_hi_v'], '.1f')} | {r['charge_beyond_pct']:.1f} | {r['n_reversals']} | {_num(r['min_reversal_v'], '.2f')} | "
+                     f"{_num(r['v_hi_v'], '.1f')} | {r['charge_beyond_pct']:.1f} | {r['n_reversals']} | "
+                     f"{_num(r['min_reversal_v'], '.2f')} | "
                      f"{r['longest_hold_s']:.1f} | {_num(r['excursion_min_s'], '.3g')} to "
                      f"{_num(r['excursion_max_s'], '.3g')} | {lacks} |")
     val = cov[cov["role"] == "validation"]
