@@ -160,6 +160,7 @@ def run_device(family: str, preset: str, seed: int, config: Mapping[str, Any] | 
         "mixed_displacement_pct": mixed_pct.get("displacement", float("nan")),
         "mixed_force_pct": mixed_pct.get("force", float("nan")),
         "coverage_lacks": lacks,
+        "per_trial_pct": {r.trial: float(r.percent_of_range) for r in pt.itertuples() if r.role == "validation"},
         "h_model": str(hrep.get("h_model", "")),
         "h_selected": str(hrep.get("selected", hrep.get("h_model", ""))),
         "h_fit_rms_v": float(hrep.get("rms_v", float("nan"))),
