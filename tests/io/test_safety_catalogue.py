@@ -151,6 +151,27 @@ def test_plausibility(dataset, case):
         assert not errors and load_dataset(dataset)
 
 
+@pytest.mark.parametrize("factor, refused", [(None, True), (1.0, False), (1.1, False), (2.0, True), (0.5, True)])
+def test_a_shunt_plateau_at_the_declared_current_limit_is_the_amplifiers(dataset, factor, refused):
+    """An HV amplifier at its current limit delivers a constant current, which an undithered shunt channel reads as
+    one code at its extreme: with the limit declared in rig.yaml (``amplifier_current_limit_a``) a plateau at it
+    (within 15 %) passes, one elsewhere is still a clipped channel, and so is any plateau without the declaration."""
+    from test_catalogue import mod_log as _mod_log
+
+    rig = yaml.safe_load((dataset / "rig.yaml").read_text())
+    x = read_any(dataset / "blocked_sine.csv")["v_shunt"].to_numpy()
+    level = 0.5 * float(np.nanmax(np.abs(x)))   # where _clip("v_shunt", 0.5) puts the plateau
+    _mod_log("blocked_sine.csv", _clip("v_shunt", 0.5))(dataset)
+    if factor is not None:
+        i_lim = factor * level / (rig["inamp_gain"] * rig["shunt_resistance_ohm"])
+        mod_rig(lambda r: r.update(amplifier_current_limit_a=i_lim))(dataset)
+    errors, _ = check_dataset(dataset)
+    flat = [p for p in errors if p.field == "v_shunt" and "no flat tops" in str(p)]
+    assert bool(flat) == refused, "\n".join(map(str, errors))
+    if not refused:
+        assert not errors and load_dataset(dataset)
+
+
 def test_reference_snr_limits_are_ordered_and_noise_alone_fails():
     """The weak-reference warning sits above the error limit (a rig that swaps them is refused by name), and white
     noise alone (a disconnected sensor) reads about 5 x its noise: below the error limit with margin."""
@@ -228,6 +249,10 @@ YAML_CASES = [
     ("rig-plausibility-inverted", mod_rig(lambda r: r.update(plausibility={"charge_ratio_min": 9.0})),
      "a value <= plausibility.charge_ratio_max"),
     ("rig-plausibility-not-mapping", mod_rig(lambda r: r.update(plausibility=[1, 2])), "a mapping"),
+    ("rig-current-limit-not-a-number", mod_rig(lambda r: r.update(amplifier_current_limit_a="5 mA")),
+     "amplifier_current_limit_a"),
+    ("rig-current-limit-negative", mod_rig(lambda r: r.update(amplifier_current_limit_a=-0.005)),
+     "amplifier_current_limit_a"),
     # YAML keeps the last of two values without a word: the second shunt would rescale every charge
     ("rig-duplicate-key", _rig_append("shunt_resistance_ohm: 1200.0\n"), "duplicate key 'shunt_resistance_ohm'"),
 ]

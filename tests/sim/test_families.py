@@ -289,3 +289,30 @@ def test_effect_free_twin_removes_only_the_named_effect(tmp_path, monkeypatch):
     out = bench(1, ["gpi"], ["drift"], 1, tmp_path / "b", protocol="thesis", randomise="device", progress=False,
                 without=("leakage",))   # resumed: nothing simulated
     assert out.loc[0, "displacement_median_pct"] == pytest.approx(1.0)
+
+
+def test_whole_device_rig_declares_the_amplifier_current_limit_and_its_plateau_passes_the_contract():
+    """Whole-device randomisation draws an HV amplifier current limit (2-20 mA); its user knows it from the data
+    sheet and rig.yaml says so (``amplifier_current_limit_a``). Rate-dependent KP 100 runs into that limit in every
+    trial and its 14-bit shunt channel reads the plateau as one code: refused as a clipped channel without the
+    declaration (the benchmark recorded the device as an invalid dataset), accepted with it. The blind gap
+    simulator, where the amplifier's limits are an effect hidden from the diagnostic, declares nothing; a scenario
+    cannot add other rig keys."""
+    import yaml
+
+    from selfsense.devices import device_scenario, simulate_device
+    from selfsense.io import ContractError
+    from selfsense.sim.simulate import load_scenario, simulate_dataset
+
+    sc = device_scenario("rate_kp", "clean", 100, protocol="thesis", randomise="device")
+    i_lim = 1e-3 / sc["effects"]["amplifier_limits"]
+    assert sc["rig_extra"] == {"amplifier_current_limit_a": pytest.approx(i_lim)}
+    _, _, rig, _ = simulate_device(sc)
+    assert rig.amplifier_current_limit_a == pytest.approx(i_lim)
+    bare = {k: v for k, v in sc.items() if k != "rig_extra"}
+    with pytest.raises(ContractError, match="no flat tops"):
+        simulate_device(bare)
+    # the family draw without whole-device randomisation (as the blind gap campaigns use it): no declaration
+    assert "rig_extra" not in device_scenario("rate_kp", "clean", 100)
+    with pytest.raises(ValueError, match=r"rig_extra: unknown keys \['adc_bits'\]"):
+        load_scenario({**bare, "rig_extra": {"adc_bits": 16}})

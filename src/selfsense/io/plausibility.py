@@ -17,7 +17,10 @@ cannot be right, so that the pipeline never ends with plausible-looking tables c
   has a flat laser. On a free tip the displacement must also be of the size the data sheet gives
   (``tip_free_displacement_m * V / max_voltage_v``).
 * **flat tops** -- a run of identical values at a channel's extreme is clipping, whatever ``adc_range_v`` says
-  (an in-amp or sensor amplifier saturates below the DAQ range).
+  (an in-amp or sensor amplifier saturates below the DAQ range); except, on ``v_shunt``, a plateau at the HV
+  amplifier's current limit declared in rig.yaml (``amplifier_current_limit_a``): an amplifier at its limit delivers
+  a constant current, which an undithered ADC reads as one code (the voltage link's amplifier member rebuilds V
+  there, docs/method.md 1a).
 * **trial length** -- enough samples with the actuator connected to calibrate or score anything.
 
 Each finding is a :class:`~selfsense.io.errors.Problem` with ``level`` ``"error"`` (the dataset is refused) or
@@ -125,11 +128,19 @@ def _robust_range(x: np.ndarray) -> float:
     return float(hi - lo)
 
 
-def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float]) -> tuple[int, float, int] | None:
+#: a v_shunt plateau within this share of the declared current limit's level is the amplifier's (data-sheet limits
+#: are nominal)
+CURRENT_LIMIT_TOL = 0.15
+
+
+def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float],
+              limit_levels: tuple[float, float, float] | None = None) -> tuple[int, float, int] | None:
     """(1-based first row, value, count) of a clipped extreme of ``x``, or None.
 
     Only samples where the drive ``u_cmd`` is changing (``moving``) count: a plateau of a steps drive legitimately
-    holds a noise-free signal constant, a clipped channel stays flat while the drive moves on."""
+    holds a noise-free signal constant, a clipped channel stays flat while the drive moves on. ``limit_levels``:
+    ``(zero, level, tol)``: an extreme within ``tol`` of ``zero +- level`` (the shunt channel at the amplifier's
+    declared current limit) is not a clipped one."""
     xf = x[np.isfinite(x)]
     n = xf.size
     if n < 3:
@@ -143,6 +154,10 @@ def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float]) -> tu
     for ext in (hi, lo):
         if ext == 0.0:
             continue  # exactly 0 V is a physical floor of noise-free data (no force before contact), not a rail
+        if limit_levels is not None:
+            zero, level, tol = limit_levels
+            if abs(abs(ext - zero) - level) <= tol:
+                continue  # the amplifier's current-limit plateau (rig.yaml amplifier_current_limit_a)
         at = (x == ext) & moving
         cnt = int(at.sum())
         if cnt < need:
@@ -246,9 +261,14 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
     ref_col = {"displacement": "laser", "force": "load_cell"}.get(ref)
     u = df["u_cmd"].to_numpy(np.float64)
     moving = np.concatenate(([False], np.diff(u) != 0))[released]
+    i_lim = getattr(rig, "amplifier_current_limit_a", None)
+    shunt_levels = None
+    if i_lim:
+        level = rig.inamp_gain * rig.shunt_resistance_ohm * float(i_lim)
+        shunt_levels = (off * rig.inamp_gain, level, CURRENT_LIMIT_TOL * level)
     for c in ("v_shunt",) + ((ref_col,) if ref_col else ()):
         x = df[c].to_numpy(np.float64)[released]
-        ft = _flat_top(x, moving, lim)
+        ft = _flat_top(x, moving, lim, shunt_levels if c == "v_shunt" else None)
         if ft is not None:
             row, val, cnt = ft
             rows_rel = np.flatnonzero(released)

@@ -17,6 +17,7 @@ Optional keys (for DAQ logs that are not in the canonical layout, see docs/data_
 
     format: auto | csv | parquet       # how to read the trial logs (auto: by file extension)
     adc_range_v: 10.0                  # +-full scale of the DAQ inputs, used for the saturation check
+    amplifier_current_limit_a: 0.005   # HV amplifier's current limit (data sheet) [A]: its plateau is no clipping
     channel_map:
       columns: {t: Time_ms, v_shunt: AI1}   # canonical name -> the file's column name
       scale:   {t: 1.0e-3}                  # canonical = scale * file column (e.g. ms -> s, mV -> V)
@@ -105,6 +106,9 @@ class Rig:
     u_cmd_max_v: float = 10.5
     #: plausibility limits overriding :data:`selfsense.io.plausibility.DEFAULTS` (rig.yaml ``plausibility:``)
     plausibility: tuple[tuple[str, float], ...] = ()
+    #: the HV amplifier's output current limit [A] from its data sheet (rig.yaml ``amplifier_current_limit_a``), or
+    #: None: a plateau of the shunt current at this limit is the amplifier's, not a clipped channel
+    amplifier_current_limit_a: float | None = None
 
     @property
     def plausibility_limits(self) -> dict[str, float]:
@@ -144,7 +148,7 @@ _REQUIRED: dict[str, Any] = {
     },
     "tip_free_displacement_m": (_NUM, 1e-7, 0.1, True),
 }
-_OPTIONAL = {"format", "adc_range_v", "channel_map", "drive", "plausibility"}
+_OPTIONAL = {"format", "adc_range_v", "amplifier_current_limit_a", "channel_map", "drive", "plausibility"}
 
 
 _Loader = NoAliasLoader  # aliases refused (a YAML alias bomb under a known key cannot expand)
@@ -269,6 +273,9 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
         probs.append(Problem(RIG_FILE, "format", None, "'auto', 'csv', 'parquet', 'tdms' or 'mat'", fmt))
     adc = data.get("adc_range_v", 10.0)
     adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
+    i_lim = data.get("amplifier_current_limit_a")
+    if i_lim is not None:
+        i_lim = _check_value("amplifier_current_limit_a", i_lim, (_NUM, 1e-6, 100.0, True), probs)
     cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None
     u_lo, u_hi = _check_drive(data.get("drive"), probs)
     from .plausibility import DEFAULTS as _PD, check_plausibility_keys
@@ -295,6 +302,7 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
         u_cmd_min_v=u_lo,
         u_cmd_max_v=u_hi,
         plausibility=tuple(sorted((k, v) for k, v in plaus.items() if v != _PD[k])),
+        amplifier_current_limit_a=None if i_lim is None else float(i_lim),
     )
     return rig, probs
 

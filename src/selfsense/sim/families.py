@@ -164,6 +164,9 @@ def _randomise_device(sc: dict, family: str, seed: int, swing: float) -> None:
     dev["laser_noise_m"] = _log_u(rng, "laser_noise_m")
     dev["amplifier_bandwidth_hz"] = _log_u(rng, "amplifier_bandwidth_hz")
     sc["effects"]["amplifier_limits"] = _log_u(rng, "amplifier_limits")
+    # the user of this rig knows the amplifier's current limit from its data sheet and says so in rig.yaml (the data
+    # contract then reads a shunt plateau at it as the amplifier's, not as a clipped channel)
+    sc["rig_extra"] = {"amplifier_current_limit_a": 1e-3 / sc["effects"]["amplifier_limits"]}
     # dielectric relaxation: three lags, weights a share of the V_H span (h_lin + the hysteretic swing)
     span = abs(dev["h_lin_v"]) + swing
     lo, hi = DEVICE_RANGES["dielectric_weight"][0]

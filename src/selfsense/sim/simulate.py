@@ -45,7 +45,10 @@ TRUTH_COLUMNS = ("t", "q", "V", "V_p", "V_H", "x_pzt", "dx_tip", "f_tip")
 TRIAL_KEYS = {"trial", "role", "tip", "object_mm", "reference", "signal", "duration", "amplitude", "freq",
               "relay_s", "rest_before_s", "levels", "hold_s", "ramp_s", "samples_v"}
 SCENARIO_KEYS = {"name", "seed", "sample_rate_hz", "substeps", "device", "effects", "effects_defaults",
-                 "trials", "description", "randomise"}   # randomise: a record of what draw_device drew (not used here)
+                 "trials", "description", "randomise", "rig_extra"}   # randomise: a record of what draw_device drew
+#: optional rig.yaml keys a scenario may add to the rig it writes (``rig_extra``): what the user of the simulated rig
+#: knows from data sheets. The blind gap campaigns write none (the amplifier's limit is an effect hidden there).
+RIG_EXTRA_KEYS = {"amplifier_current_limit_a"}
 MODE_F_REF = 50.0
 SECOND_MODE_HZ = 173.0
 
@@ -73,6 +76,9 @@ def load_scenario(path_or_dict) -> dict:
     unknown = set(sc) - SCENARIO_KEYS
     if unknown:
         raise ValueError(f"scenario: unknown keys {sorted(unknown)}; allowed {sorted(SCENARIO_KEYS)}")
+    bad_rig = set(sc.get("rig_extra") or {}) - RIG_EXTRA_KEYS
+    if bad_rig:
+        raise ValueError(f"scenario: rig_extra: unknown keys {sorted(bad_rig)}; allowed {sorted(RIG_EXTRA_KEYS)}")
     for i, tr in enumerate(sc.get("trials", [])):
         bad = set(tr) - TRIAL_KEYS
         if bad:
@@ -345,7 +351,8 @@ def simulate_dataset(scenario, seed: int | None = None, out_dir=None, truth_dir=
     tmp_truth = Path(tempfile.mkdtemp(prefix=f".{truth_dir.name}.", dir=truth_dir.parent))
     try:
         with open(tmp_out / "rig.yaml", "w") as fh:
-            yaml.safe_dump(rig_dict(name, dev, fs), fh, sort_keys=False)
+            yaml.safe_dump({**rig_dict(name, dev, fs), **{k: float(v) for k, v in (sc.get("rig_extra") or {}).items()}},
+                           fh, sort_keys=False)
         rows = []
         for tr in sc["trials"]:
             log, truth = res[tr["trial"]]
