@@ -92,6 +92,8 @@ DATES = {
     "whole_device_weak_reference_fresh94": "2026-12-07",
     "whole_device_current_fresh97": "2026-12-07",
     "whole_device_current_drift_fresh97": "2026-12-07",
+    "whole_device_current_fresh100": "2026-12-08",
+    "whole_device_current_drift_fresh100": "2026-12-08",
     "creep_chain_first_20261211": "2026-12-03",
     "creep_chain_held_20261211": "2026-12-03",
     "gap_tip": "2026-11-24",
@@ -416,6 +418,14 @@ COMMANDS = {
     "whole_device_current_drift_fresh97": "selfsense devices bench --n 3 --first-seed 97 --presets drift --jobs 2 "
                                           "--protocol thesis --randomise device --out "
                                           "benchmarks/cross_device/whole_device/current_drift_fresh97",
+    "whole_device_current_fresh100": "selfsense devices bench --n 2 --first-seed 100 --presets clean --jobs 1 "
+                                     "--protocol thesis --randomise device --out "
+                                     "benchmarks/cross_device/whole_device/current_fresh100 (its two rate-dependent KP "
+                                     "devices, refused by the data contract at first contact, scored again by the same "
+                                     "command with --families rate_kp after rig.yaml amplifier_current_limit_a)",
+    "whole_device_current_drift_fresh100": "selfsense devices bench --n 2 --first-seed 100 --presets drift --jobs 1 "
+                                           "--protocol thesis --randomise device --out "
+                                           "benchmarks/cross_device/whole_device/current_drift_fresh100",
     "whole_device_weak_reference_fresh94": "selfsense devices run --family rate_kp --preset PRESET --seed 96 "
                                            "--protocol thesis --randomise device --out benchmarks/cross_device/"
                                            "whole_device/weak_reference_fresh94/records/rate_kp_PRESET_96.json "
@@ -622,6 +632,9 @@ WHOLE_WEAK94 = "benchmarks/cross_device/whole_device/weak_reference_fresh94"
 #: the current code on whole-device seeds nothing had been scored on (first contact): folder -> key of COMMANDS, DATES
 WHOLE_FRESH97 = {"benchmarks/cross_device/whole_device/current_fresh97": "whole_device_current_fresh97",
                  "benchmarks/cross_device/whole_device/current_drift_fresh97": "whole_device_current_drift_fresh97"}
+#: the same on seeds 100-101 (the code of rig.yaml amplifier_current_limit_a and the drive coverage; estimator unchanged)
+WHOLE_FRESH100 = {"benchmarks/cross_device/whole_device/current_fresh100": "whole_device_current_fresh100",
+                  "benchmarks/cross_device/whole_device/current_drift_fresh100": "whole_device_current_drift_fresh100"}
 #: the --jobs each preset's run into WHOLE_DUHEM was made with (the records do not depend on it)
 WHOLE_DUHEM_JOBS = {"clean": 1, "drift": 2}
 
@@ -961,6 +974,12 @@ def cross_device_figures() -> list[Fig]:
             + [f for src, key in WHOLE_FRESH97.items() if (ROOT / src / "cross_device.csv").exists()
                for f in _device_table_figures(f"{src}/cross_device.csv", "whole-device randomisation, thesis "
                                               "calibration, fresh seeds 97-99 (current code, first contact)",
+                                              COMMANDS[key], DATES[key])]
+            + [f for src, key in WHOLE_FRESH100.items() if (ROOT / src / "cross_device.csv").exists()
+               for f in _device_table_figures(f"{src}/cross_device.csv", "whole-device randomisation, thesis "
+                                              "calibration, fresh seeds 100-101 (current code, first contact"
+                                              + ("; rate-dependent KP refused by the data contract then, scored "
+                                                 "after its current-limit fix)" if "drift" not in key else ")"),
                                               COMMANDS[key], DATES[key])])
 
 

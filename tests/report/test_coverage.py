@@ -76,13 +76,15 @@ def test_each_feature_the_sine_calibration_lacks_is_named_and_a_copy_of_it_lacks
                 "minor": _trial(_small_reversals()),
                 "beyond": _trial(_sine([1.3])),
                 "fast": _trial(_sine([1.0, 1.0], f=2.0)),
-                "slow": _trial(_sine([1.0], f=0.05))})
+                "slow": _trial(_sine([1.0, 1.0], f=0.05))})
     assert _lacks(cov, "same") == set()
     assert _lacks(cov, "hold") == {"holds"}
     assert _lacks(cov, "minor") == {"minor"}
     assert _lacks(cov, "beyond") == {"range"}
     assert _lacks(cov, "fast") == {"fast"}
-    assert _lacks(cov, "slow") == {"slow"}
+    # a sine 8x slower than the calibration's: its excursions, and its turning points, which it holds for 0.6 s
+    # within the hold band (a ramp slower than the band per 0.5 s counts as held)
+    assert _lacks(cov, "slow") == {"slow", "holds"}
     rows = cov.set_index("trial")
     assert (rows.loc[["cal_free", "cal_blocked"], "lacks"] == "").all()
     # the measured features themselves: the hold's length, the 10 V reversals, 30 % beyond the calibrated charge
@@ -133,9 +135,10 @@ def test_noise_reverses_nothing_and_the_references_are_never_read():
 
 def test_turning_points_of_a_triangle_wave_with_a_dead_band():
     v = np.concatenate([np.linspace(0, 10, 11), np.linspace(9, 4, 6), np.linspace(5, 5.3, 4), np.linspace(6, 12, 7)])
-    pts = _turning_points(v, band=1.0)
-    assert list(v[pts]) == [0.0, 10.0, 4.0, 12.0]
-    assert list(_turning_points(np.full(50, 3.0), band=DEAD_BAND)) == [0]
+    pts, last = _turning_points(v, band=1.0)
+    assert list(v[pts]) == [10.0, 4.0] and v[last] == 12.0   # the last maximum is not confirmed: no reversal
+    pts, last = _turning_points(np.full(50, 3.0), band=DEAD_BAND)
+    assert pts.size == 0 and last == -1
 
 
 def test_the_markdown_sets_the_validation_errors_side_by_side():
@@ -206,3 +209,65 @@ def test_the_thesis_protocol_lacks_the_holds_of_the_mixed_drives_that_the_mixed_
             (thesis.loc[t, "longest_hold_s"] > HOLD_FACTOR * cal_longest)
         assert "holds" not in three.loc[t, "lacks"].split(";"), three.loc[t].to_dict()
     assert all("holds" in thesis.loc[t, "lacks"].split(";") for t in mixed_val)
+
+
+def _cal_meta(extra):
+    return _meta([("cal_free", "calibration"), ("cal_blocked", "calibration")] + [(k, "validation") for k in extra])
+
+
+def test_what_the_record_does_not_show_is_no_feature():
+    """A record cut short mid-rise, a rest with a small blip before the drive, a ramp into a hold, a staircase with a
+    hold between its steps and 0.5 V of noise on a long hold at 1 kHz: each is read as the drive it is (review
+    cases)."""
+    fs = 1000.0
+    cut = _sine([1.0, 0.8, 0.6, 1.0], fs=fs)[: int(1.9 * fs / 0.4)]           # ends 90 % of the way into a cycle
+    blip = np.concatenate([np.full(50, 2.5), np.zeros(3000), _sine([1.0, 0.8, 0.6, 1.0], fs=fs)])
+    ramp_hold = np.concatenate([np.linspace(0, 60, int(15 * fs)), np.full(int(4 * fs), 60.0),
+                                np.linspace(60, 0, int(0.8 * fs)), np.zeros(200)])
+    stair = np.concatenate([np.linspace(0, 50, int(0.9 * fs)), np.full(int(4 * fs), 50.0),
+                            np.linspace(50, 100, int(0.9 * fs)), np.linspace(100, 0, int(0.9 * fs)), np.zeros(200)])
+    noisy = _trapezoid(hold_s=8.0, fs=fs)
+    extra = {"cut": _trial(cut, fs=fs), "blip": _trial(blip, fs=fs), "ramp_hold": _trial(ramp_hold, fs=fs),
+             "stair": _trial(stair, fs=fs), "noisy": _trial(noisy, fs=fs, noise=0.5, seed=3)}
+    cal = {k: _trial(_sine(a, fs=fs), fs=fs) for k, a in (("cal_free", [1.0, 0.8, 0.6, 1.0]),
+                                                         ("cal_blocked", [1.0, 0.7, 1.0]))}
+    cov = coverage_table({**cal, **extra}, _cal_meta(extra)).set_index("trial")
+    assert _lacks(cov.reset_index(), "cut") == set()
+    assert _lacks(cov.reset_index(), "blip") == set()                      # the rest before the drive: no hold
+    assert cov.loc["ramp_hold", "longest_hold_s"] == pytest.approx(4.0, abs=0.2)   # + the ramp's last band
+    assert "holds" in _lacks(cov.reset_index(), "ramp_hold")
+    assert "slow" not in _lacks(cov.reset_index(), "stair")                 # the hold between the steps is no drive
+    assert cov.loc["stair", "excursion_max_s"] == pytest.approx(1.8, rel=0.05)
+    assert cov.loc["noisy", "n_reversals"] == cov.loc["noisy", "n_reversals"] == 1
+    assert _lacks(cov.reset_index(), "noisy") == {"holds"}
+    assert cov.loc["noisy", "longest_hold_s"] == pytest.approx(8.0, abs=0.1)
+
+
+def test_missing_calibration_signals_a_dead_charge_and_hold_rows_not_fitted():
+    sig = _calibration()
+    with pytest.raises(ValueError, match=r"calibration trial\(s\) \['cal_blocked'\] of trials.csv have no signals"):
+        coverage_table({"cal_free": sig["cal_free"], "v": _trial(_trapezoid())},
+                       _meta([("cal_free", "calibration"), ("cal_blocked", "calibration"), ("v", "validation")]))
+    dead = {k: v.assign(q=0.0) for k, v in sig.items()}
+    with pytest.raises(ValueError, match="charge of the calibration trials .* does not vary \\(column 'q'"):
+        coverage_table(dead, _meta([("cal_free", "calibration"), ("cal_blocked", "calibration")]))
+    cov = _run({"hold": _trial(_trapezoid())})
+    pt = pd.DataFrame({"trial": ["hold"], "role": ["validation"], "measurement": ["force"],
+                       "percent_of_range": [2.0]})
+    # hold rows applied but not fitted by the selected model: not said to have fitted the creep
+    assert "hold rows" not in coverage_markdown(cov, pt, {"applied": True, "fitted": False, "trials": ["hold"]})
+    with pytest.raises(ValueError, match=r"per_trial.csv\) have no column\(s\) \['role'\]"):
+        coverage_markdown(cov, pt.drop(columns=["role"]))
+    # the CSV read back (empty lacks as NaN) gives the same Markdown
+    import io
+    back = pd.read_csv(io.StringIO(cov.to_csv(index=False)))
+    assert coverage_markdown(back, pt) == coverage_markdown(cov, pt)
+    bad_t = _trial(_trapezoid()).assign(t=0.0)
+    with pytest.raises(ValueError, match="trial 'x': column 't' does not increase"):
+        drive_features(bad_t, 1.0, "x")
+
+
+def test_a_rest_slightly_below_zero_reads_zero_in_the_table():
+    sig = {k: v.assign(V=v["V"] - 0.003) for k, v in _calibration().items()}
+    md = coverage_markdown(coverage_table(sig, _meta([("cal_free", "calibration"), ("cal_blocked", "calibration")])))
+    assert "| 0.0 to 100.0 |" in md and "-0.0" not in md

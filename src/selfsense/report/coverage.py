@@ -24,14 +24,15 @@ and without such a feature side by side (:func:`coverage_markdown`).
 
 Definitions (samples with the relay open; V smoothed by block means of about 2 ms):
 
-* reversal: a turning point of V with a dead band of :data:`DEAD_BAND` of the calibration trials' V span; its
-  amplitude is the change of V since the previous turning point;
-* hold: V steady for at least :data:`MIN_HOLD_S` -- a run of 50-ms block means of V, each within ``max(0.5 % of
-  the calibration's V span, 4 noise sd of a block mean)`` of the one before and all within four times that -- leaving
-  out a rest at the start of the record (before the drive moves, nothing relaxes). Block means, not samples: noise
-  in V does not break a hold into pieces;
-* excursion duration: the time V takes from 10 % to 90 % of an excursion (turning point to turning point), over 0.8
-  (a ramp's own duration; holds at either end do not count).
+* reversal: a confirmed turning point of V with a dead band of :data:`DEAD_BAND` of the calibration trials' V span
+  (at least :data:`BAND_NOISE` noise sd of a block mean); its amplitude is the change of V since the previous
+  reversal (the first excursion from rest and the last, unconfirmed one are no reversals);
+* hold: V steady for at least :data:`MIN_HOLD_S` -- a stretch of 50-ms block means of V that all stay within
+  ``tol = max(0.5 % of the calibration's V span, 4 noise sd of a block mean)`` of its first block (so a ramp slower
+  than ``tol`` per 0.5 s counts as held) -- leaving out the rest before V first leaves its starting level by 10 % of
+  the span (before the drive moves, nothing relaxes). Block means, not samples: noise does not break a hold;
+* excursion duration: the time V takes from 10 % to 90 % of an excursion (from the start of the record or a
+  reversal to the next reversal), less the holds within it, over 0.8 (a ramp's own duration).
 """
 from __future__ import annotations
 
@@ -60,8 +61,12 @@ BLOCK_S = 0.002
 #: block length [s] of the means of V in which holds are found, and the shortest hold [s]
 HOLD_BLOCK_S = 0.05
 MIN_HOLD_S = 0.5
-#: a hold's step band, as a fraction of the calibration trials' V span
+#: a hold's band, as a fraction of the calibration trials' V span
 HOLD_BAND = 0.005
+#: the rest before the drive ends where V first leaves its starting level by this fraction of the calibration's span
+REST_LEAVE = 0.1
+#: the reversal dead band is at least this many noise standard deviations of a block mean of V
+BAND_NOISE = 10.0
 
 #: feature key -> words of the report
 FEATURES = {"range": "charge beyond the calibrated range", "minor": "reversals smaller than any calibration reversal",
@@ -80,13 +85,11 @@ def _block_means(x: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(x[:n], float).reshape(-1, k).mean(axis=1)
 
 
-def _turning_points(v: np.ndarray, band: float) -> np.ndarray:
-    """Indices of the turning points of ``v`` with a dead band ``band``: a maximum is confirmed once ``v`` has fallen
-    ``band`` below it (a minimum likewise); the first sample opens the list and the extremum of the last excursion,
-    once it has moved ``band``, closes it."""
-    if len(v) == 0:
-        return np.zeros(0, int)
-    pts = [0]
+def _turning_points(v: np.ndarray, band: float) -> tuple[np.ndarray, int]:
+    """``(confirmed, last)``: the indices of the confirmed turning points of ``v`` with a dead band ``band`` (a maximum
+    is confirmed once ``v`` has fallen ``band`` below it, a minimum likewise), and the index of the running
+    excursion's extremum at the end of the record (-1 where ``v`` never moved ``band``): that one is not a reversal."""
+    pts: list[int] = []
     i_ext, direction = 0, 0   # direction of the running excursion: +1 rising, -1 falling, 0 not yet moved
     for i in range(1, len(v)):
         x = v[i]
@@ -106,56 +109,62 @@ def _turning_points(v: np.ndarray, band: float) -> np.ndarray:
             elif x - v[i_ext] >= band:
                 pts.append(i_ext)
                 direction, i_ext = 1, i
-    if direction != 0 and pts[-1] != i_ext:
-        pts.append(i_ext)
-    return np.asarray(pts, int)
+    return np.asarray(pts, int), (i_ext if direction != 0 else -1)
 
 
-def _excursion_durations(v: np.ndarray, t: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """The duration [s] of every excursion between consecutive turning points: the time from its 10 % to its 90 %
-    crossing, over 0.8."""
+def _excursion_durations(v: np.ndarray, t: np.ndarray, bounds: np.ndarray, holds: list[tuple[float, float]]
+                         ) -> np.ndarray:
+    """The duration [s] of every excursion between consecutive ``bounds`` (indices into ``v``, ``t``): the time from
+    its 10 % to its 90 % crossing, less the time spent in ``holds`` ((start, end) [s]) within it, over 0.8."""
     out = []
-    for a, b in zip(pts[:-1], pts[1:]):
+    for a, b in zip(bounds[:-1], bounds[1:]):
         seg = v[a:b + 1]
         amp = seg[-1] - seg[0]
         if amp == 0 or len(seg) < 3:
             continue
         rel = (seg - seg[0]) / amp
-        i10 = int(np.argmax(rel >= 0.1))
-        i90 = int(np.argmax(rel >= 0.9))
-        dt = float(t[a + i90] - t[a + i10])
-        if dt > 0:
-            out.append(dt / 0.8)
+        t10 = float(t[a + int(np.argmax(rel >= 0.1))])
+        t90 = float(t[a + int(np.argmax(rel >= 0.9))])
+        held = sum(max(0.0, min(e, t90) - max(s, t10)) for s, e in holds)
+        if t90 - t10 - held > 0:
+            out.append((t90 - t10 - held) / 0.8)
     return np.asarray(out, float)
 
 
-def _holds(t: np.ndarray, V: np.ndarray, dt: float, v_span: float) -> list[float]:
-    """Durations [s] of the holds of V (module docstring), a rest at the start of the record left out."""
-    from selfsense.signals import true_runs
+def _noise_sd(V: np.ndarray) -> float:
+    """White-noise standard deviation of V per sample (median absolute first difference: slow drives do not count)."""
+    d = np.diff(V)
+    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0) if d.size else 0.0
 
+
+def _holds(t: np.ndarray, V: np.ndarray, dt: float, v_span: float) -> list[tuple[float, float]]:
+    """``(start, end)`` [s] of the holds of V (module docstring), the rest before the drive left out: the record is
+    cut into stretches of 50-ms block means that stay within ``tol`` of their first block; a stretch of at least
+    :data:`MIN_HOLD_S` is a hold (a ramp slower than ``tol`` per :data:`MIN_HOLD_S` is held too), unless it lies
+    before V first leaves its starting level by :data:`REST_LEAVE` of the span."""
     k = max(1, round(HOLD_BLOCK_S / dt))
     b, tb = _block_means(V, k), _block_means(t, k)
     if len(b) < 3:
         return []
-    d = np.diff(V)
-    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)   # per sample
-    tol = max(HOLD_BAND * v_span, 4.0 * noise / np.sqrt(k))
-    steady = np.abs(np.diff(b)) < tol                  # block i + 1 within tol of block i
-    out = []
-    for a, e in zip(*true_runs(steady)):
-        seg = b[a:e + 1]                               # blocks a .. e
-        if a == 0 or np.ptp(seg) > 4.0 * tol:          # the rest before the drive; a slow ramp
-            continue
-        dur = float(tb[e] - tb[a]) + k * dt
-        if dur >= MIN_HOLD_S:
-            out.append(dur)
+    tol = max(HOLD_BAND * v_span, 4.0 * _noise_sd(V) / np.sqrt(k))
+    left = np.flatnonzero(np.abs(b - b[0]) > REST_LEAVE * v_span)
+    if left.size == 0:
+        return []                                      # the drive never moved: all rest
+    out, a = [], 0
+    for i in range(1, len(b) + 1):
+        if i == len(b) or abs(b[i] - b[a]) > tol:
+            t0, t1 = float(tb[a]) - 0.5 * k * dt, float(tb[i - 1]) + 0.5 * k * dt
+            if a >= left[0] and t1 - t0 >= MIN_HOLD_S:
+                out.append((t0, t1))
+            a = i
     return out
 
 
 def drive_features(df: pd.DataFrame, v_band: float, name: str = "trial", v_span: float | None = None) -> dict:
     """The drive features of one trial (module docstring) from its prepared signals (``t``, ``V``, ``q``,
-    ``relay``); ``v_band``: the reversal dead band [V]; ``v_span``: the calibration's V span [V] (the scale of the
-    holds' band; ``v_band / DEAD_BAND`` where not given)."""
+    ``relay``); ``v_band``: the reversal dead band [V] (widened to :data:`BAND_NOISE` noise sd of a block mean where
+    the trial's V is noisier); ``v_span``: the calibration's V span [V] (the scale of the holds' band;
+    ``v_band / DEAD_BAND`` where not given)."""
     missing = [c for c in ("t", "V", "q", "relay") if c not in df.columns]
     if missing:
         raise ValueError(f"drive coverage: trial {name!r} has no column(s) {missing} (expected the prepared signals "
@@ -170,15 +179,23 @@ def drive_features(df: pd.DataFrame, v_band: float, name: str = "trial", v_span:
         raise ValueError(f"drive coverage: trial {name!r} has {len(t)} finite samples with the relay open "
                          "(expected at least 10)")
     dt = float(np.median(np.diff(t)))
-    k = max(1, round(BLOCK_S / dt)) if dt > 0 else 1
+    if not dt > 0:
+        raise ValueError(f"drive coverage: trial {name!r}: column 't' does not increase (median step {dt:g} s; "
+                         "expected increasing time stamps)")
+    span = v_band / DEAD_BAND if v_span is None else v_span
+    k = max(1, round(BLOCK_S / dt))
     vb, tb, qb = _block_means(V, k), _block_means(t, k), _block_means(q, k)
-    pts = _turning_points(vb, v_band)
+    band = max(v_band, BAND_NOISE * _noise_sd(V) / np.sqrt(k))
+    pts, last = _turning_points(vb, band)
+    holds = _holds(t, V, dt, span)
+    # reversals: between confirmed turning points only; excursions: also the first one, from the start of the
+    # record (its 10-90 % crossing is the drive's own), not the last, which the record may cut short
     amps = np.abs(np.diff(vb[pts]))
-    rates = _excursion_durations(vb, tb, pts)
-    hold_s = _holds(t, V, dt, v_band / DEAD_BAND if v_span is None else v_span)
+    bounds = np.concatenate(([0], pts)) if last >= 0 else pts
+    rates = _excursion_durations(vb, tb, bounds, holds)
     return {"duration_s": float(t[-1] - t[0]), "v_lo_v": float(vb.min()), "v_hi_v": float(vb.max()),
             "q_lo_c": float(qb.min()), "q_hi_c": float(qb.max()), "amplitudes_v": amps, "excursions_s": rates,
-            "holds_s": hold_s}
+            "holds_s": [e - s for s, e in holds], "n_reversals": len(pts)}
 
 
 _READ = ["t", "V", "q", "relay"]
@@ -205,10 +222,15 @@ def coverage_table(signals: Mapping[str, pd.DataFrame | str], meta: pd.DataFrame
     at a time)."""
     meta = meta.set_index("trial") if "trial" in meta.columns else meta
     trials = [t for t in meta.index if t in signals]
-    cal = [t for t in trials if str(meta.loc[t, "role"]) == "calibration"]
-    if not cal:
-        raise ValueError("drive coverage: trials.csv lists no calibration trial among the trials given (column "
-                         "'role': expected at least one 'calibration')")
+    listed = [t for t in meta.index if str(meta.loc[t, "role"]) == "calibration"]
+    if not listed:
+        raise ValueError("drive coverage: trials.csv lists no calibration trial (column 'role': expected at least "
+                         "one 'calibration')")
+    absent = [t for t in listed if t not in signals]
+    if absent:
+        raise ValueError(f"drive coverage: calibration trial(s) {absent} of trials.csv have no signals (expected "
+                         "the prepared signals of every calibration trial: the coverage is theirs)")
+    cal = listed
     v_span = 0.0
     lo, hi = np.inf, -np.inf
     for c in cal:
@@ -230,6 +252,9 @@ def coverage_table(signals: Mapping[str, pd.DataFrame | str], meta: pd.DataFrame
     q_lo = min(feats[c]["q_lo_c"] for c in cal)
     q_hi = max(feats[c]["q_hi_c"] for c in cal)
     q_span = q_hi - q_lo
+    if not q_span > 0:
+        raise ValueError(f"drive coverage: the charge of the calibration trials {cal} does not vary (column 'q': "
+                         "expected the integrated shunt charge of a drive)")
     cal_amp, cal_rate, cal_hold = union("amplitudes_v"), union("excursions_s"), union("holds_s")
     min_amp = float(cal_amp.min()) if cal_amp.size else np.inf
     longest = float(cal_hold.max()) if cal_hold.size else 0.0
@@ -237,7 +262,7 @@ def coverage_table(signals: Mapping[str, pd.DataFrame | str], meta: pd.DataFrame
     rows = []
     for t in trials:
         f = feats[t]
-        beyond = max(0.0, f["q_hi_c"] - q_hi, q_lo - f["q_lo_c"]) / q_span * 100.0 if q_span > 0 else 0.0
+        beyond = max(0.0, f["q_hi_c"] - q_hi, q_lo - f["q_lo_c"]) / q_span * 100.0
         amps, rates, holds = f["amplitudes_v"], f["excursions_s"], f["holds_s"]
         lacks = []
         if t not in cal:
@@ -253,7 +278,7 @@ def coverage_table(signals: Mapping[str, pd.DataFrame | str], meta: pd.DataFrame
                 lacks.append("slow")
         rows.append({"trial": t, "role": str(meta.loc[t, "role"]), "duration_s": f["duration_s"],
                      "v_lo_v": f["v_lo_v"], "v_hi_v": f["v_hi_v"], "q_lo_c": f["q_lo_c"], "q_hi_c": f["q_hi_c"],
-                     "charge_beyond_pct": float(beyond), "n_reversals": int(amps.size),
+                     "charge_beyond_pct": float(beyond), "n_reversals": int(f["n_reversals"]),
                      "min_reversal_v": float(amps.min()) if amps.size else np.nan,
                      "longest_hold_s": float(max(holds)) if holds else 0.0, "n_holds": len(holds),
                      "excursion_min_s": float(rates.min()) if rates.size else np.nan,
@@ -276,7 +301,9 @@ def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None,
     not a fit: nothing is chosen on it). ``hold_rows``: the fitted model's hold-row record (``fit_report_
     ["hysteresis"]["hold_rows"]``, docs/method.md 6b'): where it was applied, a trial's holds that the calibration
     lacks are marked as fitted from that trial's own V and Q (the creep of H(q) within them, not its level)."""
-    held = set((hold_rows or {}).get("trials") or ()) if (hold_rows or {}).get("applied") else set()
+    hr = hold_rows or {}
+    held = set(hr.get("trials") or ()) if hr.get("applied") and hr.get("fitted", True) else set()
+    cov = cov.assign(lacks=[x if isinstance(x, str) else "" for x in cov["lacks"]])   # a CSV read back: NaN = ""
     cal = cov[cov["role"] == "calibration"]
     lines = ["### Drive coverage of the calibration", "",
              f"What the calibration trials ({', '.join(cal['trial'])}) show H(q), and which drive features of the "
@@ -300,6 +327,9 @@ def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None,
     val = cov[cov["role"] == "validation"]
     lacking = val[val["lacks"] != ""]
     lines.append("")
+    if not (cal["n_reversals"] > 0).any():
+        lines.append("The calibration trials have no reversal: minor loops and excursion rates are not assessed.")
+        lines.append("")
     if val.empty:
         lines.append("No validation trial.")
     elif lacking.empty:
@@ -308,6 +338,9 @@ def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None,
         lines.append(f"{len(lacking)} of {len(val)} validation trials rely on drive features the calibration lacks: "
                      "their Table 3 errors include the H(q) model's extrapolation there.")
     if per_trial is not None and not lacking.empty:
+        missing = [c for c in ("trial", "role", "measurement", "percent_of_range") if c not in per_trial.columns]
+        if missing:
+            raise ValueError(f"drive coverage: the per-trial errors (per_trial.csv) have no column(s) {missing}")
         pt = per_trial[per_trial["role"] == "validation"].set_index("trial")
         keys = [k for k in FEATURES if any(k in str(x).split(";") for x in val["lacks"])]
         lines += ["", "| validation trials | displacement: trials, mean % of range | force: trials, mean % of range |",
