@@ -151,25 +151,50 @@ def test_plausibility(dataset, case):
         assert not errors and load_dataset(dataset)
 
 
+@pytest.mark.parametrize("adc", [None, "near"])
 @pytest.mark.parametrize("factor, refused", [(None, True), (1.0, False), (1.1, False), (2.0, True), (0.5, True)])
-def test_a_shunt_plateau_at_the_declared_current_limit_is_the_amplifiers(dataset, factor, refused):
+def test_a_shunt_plateau_at_the_declared_current_limit_is_the_amplifiers(dataset, factor, refused, adc):
     """An HV amplifier at its current limit delivers a constant current, which an undithered shunt channel reads as
     one code at its extreme: with the limit declared in rig.yaml (``amplifier_current_limit_a``) a plateau at it
-    (within 15 %) passes, one elsewhere is still a clipped channel, and so is any plateau without the declaration."""
+    (within 15 %, on each side of the channel's zero-current level, here 1 V of in-amp offset) passes with a warning
+    that names it, one elsewhere is still a clipped channel, and so is any plateau without the declaration -- in the
+    plausibility check and, with the plateau near the ADC range (``adc``), in the log check before it."""
     from test_catalogue import mod_log as _mod_log
 
     rig = yaml.safe_load((dataset / "rig.yaml").read_text())
     x = read_any(dataset / "blocked_sine.csv")["v_shunt"].to_numpy()
-    level = 0.5 * float(np.nanmax(np.abs(x)))   # where _clip("v_shunt", 0.5) puts the plateau
-    _mod_log("blocked_sine.csv", _clip("v_shunt", 0.5))(dataset)
+    level = 0.5 * float(np.nanmax(np.abs(x)))   # where _clip("v_shunt", 0.5) puts the plateau, around 0 V
+    offset = 1.0                                 # then the whole channel 1 V up: the zero-current level moves too
+    _mod_log("blocked_sine.csv", lambda df: _clip("v_shunt", 0.5)(df).assign(v_shunt=lambda d: d.v_shunt + offset))(
+        dataset)
+    if adc == "near":   # the ADC range just above the largest |v_shunt| of any trial: the plateau (above half of
+        # it) also meets the log check's clipped-channel rule
+        top = max(float(np.nanmax(np.abs(read_any(f)["v_shunt"].to_numpy())))
+                  for f in dataset.iterdir() if f.suffix in (".csv", ".parquet") and f.name != "trials.csv")
+        assert level + offset >= 0.5 * top / 0.99
+        mod_rig(lambda r: r.update(adc_range_v=top / 0.99))(dataset)   # no sample at the rails
     if factor is not None:
         i_lim = factor * level / (rig["inamp_gain"] * rig["shunt_resistance_ohm"])
         mod_rig(lambda r: r.update(amplifier_current_limit_a=i_lim))(dataset)
-    errors, _ = check_dataset(dataset)
-    flat = [p for p in errors if p.field == "v_shunt" and "no flat tops" in str(p)]
+    errors, warnings = check_dataset(dataset)
+    flat = [p for p in errors if p.field == "v_shunt" and ("no flat tops" in str(p) or "clipped channel" in str(p))]
     assert bool(flat) == refused, "\n".join(map(str, errors))
     if not refused:
         assert not errors and load_dataset(dataset)
+        assert any("amplifier_current_limit_a" in str(w) and w.field == "v_shunt" for w in warnings), warnings
+
+
+def test_the_current_limit_is_matched_on_its_own_side():
+    """The maximum of v_shunt is matched against zero + limit, the minimum against zero - limit."""
+    from selfsense.io.rig import parse_rig
+
+    d = yaml.safe_load((Path(__file__).resolve().parents[2] / "data" / "raw" / "sample" / "rig.yaml").read_text())
+    d["amplifier_current_limit_a"] = 1.0 / (d["inamp_gain"] * d["shunt_resistance_ohm"])   # 1 V on the channel
+    rig, probs = parse_rig(d)
+    assert not probs
+    assert rig.at_current_limit(1.2, 0.2, is_max=True) and rig.at_current_limit(-0.8, 0.2, is_max=False)
+    assert not rig.at_current_limit(-0.8, 0.2, is_max=True) and not rig.at_current_limit(1.2, 0.2, is_max=False)
+    assert not rig.at_current_limit(1.4, 0.2, is_max=True)   # 20 % off the limit
 
 
 def test_reference_snr_limits_are_ordered_and_noise_alone_fails():
@@ -252,6 +277,8 @@ YAML_CASES = [
     ("rig-current-limit-not-a-number", mod_rig(lambda r: r.update(amplifier_current_limit_a="5 mA")),
      "amplifier_current_limit_a"),
     ("rig-current-limit-negative", mod_rig(lambda r: r.update(amplifier_current_limit_a=-0.005)),
+     "amplifier_current_limit_a"),
+    ("rig-current-limit-empty", mod_rig(lambda r: r.update(amplifier_current_limit_a=None)),
      "amplifier_current_limit_a"),
     # YAML keeps the last of two values without a word: the second shunt would rescale every charge
     ("rig-duplicate-key", _rig_append("shunt_resistance_ohm: 1200.0\n"), "duplicate key 'shunt_resistance_ohm'"),

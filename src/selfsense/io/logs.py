@@ -21,7 +21,7 @@ import pandas as pd
 from selfsense.signals.runs import true_runs
 
 from .errors import ContractError, Problem
-from .rig import CANONICAL_COLUMNS, Rig
+from .rig import CANONICAL_COLUMNS, Rig, shunt_zero
 from .trials import column_problems
 
 __all__ = ["read_log", "check_log", "check_signals", "LIMITS"]
@@ -343,9 +343,12 @@ def check_signals(df: pd.DataFrame, rig: Rig | None = None, reference: str | Non
             continue
         if amax >= LIMITS["clip_min_level"] * adc:
             need = max(LIMITS["rail_max_run"], math.ceil(LIMITS["rail_max_share"] * n))
-            for ext in (float(xf.max()), float(xf.min())):
+            zero = shunt_zero(x, arr["relay"]) if c == "v_shunt" and "relay" in arr else 0.0
+            for ext, is_max in ((float(xf.max()), True), (float(xf.min()), False)):
                 if abs(ext) < LIMITS["clip_min_level"] * adc:
                     continue
+                if c == "v_shunt" and rig is not None and rig.at_current_limit(ext, zero, is_max):
+                    continue   # the HV amplifier's declared current limit (rig.yaml amplifier_current_limit_a)
                 at = x == ext
                 if _runs_max(at) >= need:
                     i = int(np.flatnonzero(at)[0])

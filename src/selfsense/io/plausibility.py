@@ -128,19 +128,14 @@ def _robust_range(x: np.ndarray) -> float:
     return float(hi - lo)
 
 
-#: a v_shunt plateau within this share of the declared current limit's level is the amplifier's (data-sheet limits
-#: are nominal)
-CURRENT_LIMIT_TOL = 0.15
-
-
 def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float],
-              limit_levels: tuple[float, float, float] | None = None) -> tuple[int, float, int] | None:
+              at_limit=None) -> tuple[int, float, int] | None:
     """(1-based first row, value, count) of a clipped extreme of ``x``, or None.
 
     Only samples where the drive ``u_cmd`` is changing (``moving``) count: a plateau of a steps drive legitimately
-    holds a noise-free signal constant, a clipped channel stays flat while the drive moves on. ``limit_levels``:
-    ``(zero, level, tol)``: an extreme within ``tol`` of ``zero +- level`` (the shunt channel at the amplifier's
-    declared current limit) is not a clipped one."""
+    holds a noise-free signal constant, a clipped channel stays flat while the drive moves on. ``at_limit(ext,
+    is_max)``: True where that extreme is the amplifier's declared current limit (:meth:`Rig.at_current_limit`), which
+    is then not a clipped one."""
     xf = x[np.isfinite(x)]
     n = xf.size
     if n < 3:
@@ -154,10 +149,8 @@ def _flat_top(x: np.ndarray, moving: np.ndarray, lim: Mapping[str, float],
     for ext in (hi, lo):
         if ext == 0.0:
             continue  # exactly 0 V is a physical floor of noise-free data (no force before contact), not a rail
-        if limit_levels is not None:
-            zero, level, tol = limit_levels
-            if abs(abs(ext - zero) - level) <= tol:
-                continue  # the amplifier's current-limit plateau (rig.yaml amplifier_current_limit_a)
+        if at_limit is not None and at_limit(ext, ext == hi):
+            continue  # the amplifier's current-limit plateau (rig.yaml amplifier_current_limit_a)
         at = (x == ext) & moving
         cnt = int(at.sum())
         if cnt < need:
@@ -261,14 +254,23 @@ def check_plausibility(df: pd.DataFrame, rig, trial: Mapping[str, Any], name: st
     ref_col = {"displacement": "laser", "force": "load_cell"}.get(ref)
     u = df["u_cmd"].to_numpy(np.float64)
     moving = np.concatenate(([False], np.diff(u) != 0))[released]
-    i_lim = getattr(rig, "amplifier_current_limit_a", None)
-    shunt_levels = None
-    if i_lim:
-        level = rig.inamp_gain * rig.shunt_resistance_ohm * float(i_lim)
-        shunt_levels = (off * rig.inamp_gain, level, CURRENT_LIMIT_TOL * level)
+    at_limit = None
+    if getattr(rig, "amplifier_current_limit_a", None):
+        def at_limit(ext, is_max):
+            return rig.at_current_limit(ext, off * rig.inamp_gain, is_max)
+
+        xs = df["v_shunt"].to_numpy(np.float64)[released]
+        xs = xs[np.isfinite(xs)]
+        if xs.size:
+            for ext, is_max in ((float(xs.max()), True), (float(xs.min()), False)):
+                cnt = int(np.sum(xs == ext))
+                if cnt >= lim["flat_top_min_samples"] and at_limit(ext, is_max):
+                    warn("v_shunt", None, "a shunt current within the amplifier's declared current limit (rig.yaml "
+                         "amplifier_current_limit_a)", f"{cnt} samples at {ext:.6g} V, the limit's plateau: taken as "
+                         "the amplifier at its limit, not as a clipped channel")
     for c in ("v_shunt",) + ((ref_col,) if ref_col else ()):
         x = df[c].to_numpy(np.float64)[released]
-        ft = _flat_top(x, moving, lim, shunt_levels if c == "v_shunt" else None)
+        ft = _flat_top(x, moving, lim, at_limit if c == "v_shunt" else None)
         if ft is not None:
             row, val, cnt = ft
             rows_rel = np.flatnonzero(released)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from .errors import ContractError, Problem
@@ -121,6 +122,33 @@ class Rig:
     def dt(self) -> float:
         """Nominal sample period [s]."""
         return 1.0 / self.sample_rate_hz
+
+    def at_current_limit(self, ext: float, zero: float, is_max: bool) -> bool:
+        """Whether the extreme ``ext`` of ``v_shunt`` (its maximum where ``is_max``) is the HV amplifier's current limit
+        declared in ``amplifier_current_limit_a``: within :data:`CURRENT_LIMIT_TOL` of ``zero + inamp_gain *
+        shunt_resistance_ohm * limit`` (``zero - ...`` for the minimum), ``zero`` being the channel's level at zero
+        current (its relay segment). An amplifier at its limit delivers a constant current, which an undithered ADC
+        reads as one code: a plateau there is not a clipped channel."""
+        if not self.amplifier_current_limit_a:
+            return False
+        level = self.inamp_gain * self.shunt_resistance_ohm * float(self.amplifier_current_limit_a)
+        target = zero + level if is_max else zero - level
+        return abs(ext - target) <= CURRENT_LIMIT_TOL * level
+
+
+#: a v_shunt plateau within this share of the declared current limit's level is the amplifier's
+#: (:meth:`Rig.at_current_limit`; data-sheet limits are nominal)
+CURRENT_LIMIT_TOL = 0.15
+
+
+def shunt_zero(v_shunt: np.ndarray, relay: np.ndarray) -> float:
+    """The ``v_shunt`` level at zero current: its mean over the relay segment at the start of the log (0 without
+    one)."""
+    rel = np.asarray(relay, float) >= 0.5
+    n = int(np.argmin(rel)) if not rel.all() else rel.size
+    x = np.asarray(v_shunt, float)[:n]
+    x = x[np.isfinite(x)]
+    return float(np.mean(x)) if x.size else 0.0
 
 
 # --- schema: key -> (type, lo, hi, positive) ------------------------------------------------------
@@ -273,9 +301,10 @@ def parse_rig(data: Any, dataset_name: str | None = None) -> tuple[Rig | None, l
         probs.append(Problem(RIG_FILE, "format", None, "'auto', 'csv', 'parquet', 'tdms' or 'mat'", fmt))
     adc = data.get("adc_range_v", 10.0)
     adc = _check_value("adc_range_v", adc, (_NUM, 0.1, 1000.0, True), probs)
-    i_lim = data.get("amplifier_current_limit_a")
-    if i_lim is not None:
-        i_lim = _check_value("amplifier_current_limit_a", i_lim, (_NUM, 1e-6, 100.0, True), probs)
+    i_lim = None
+    if "amplifier_current_limit_a" in data:   # written, it must be a number (an empty value is refused, not ignored)
+        i_lim = _check_value("amplifier_current_limit_a", data["amplifier_current_limit_a"],
+                             (_NUM, 1e-6, 100.0, True), probs)
     cmap = _check_channel_map(data["channel_map"], probs) if "channel_map" in data else None
     u_lo, u_hi = _check_drive(data.get("drive"), probs)
     from .plausibility import DEFAULTS as _PD, check_plausibility_keys
