@@ -308,7 +308,7 @@ def coverage_markdown(cov: pd.DataFrame, per_trial: pd.DataFrame | None = None,
     lines = ["### Drive coverage of the calibration", "",
              f"What the calibration trials ({', '.join(cal['trial'])}) show H(q), and which drive features of the "
              "other trials they do not cover: there the model is extrapolated (reversals found with a dead band of "
-             f"{DEAD_BAND:.0%} of the calibration's V span; holds of at least "
+             f"{DEAD_BAND * 100:g} % of the calibration's V span; holds of at least "
              f"{MIN_HOLD_S:g} s after the drive has moved; "
              "excursion durations from the 10-90 % crossing time).", "",
              "| trial | role | duration [s] | V range [V] | charge beyond the calibrated range [%] | reversals | "
