@@ -103,8 +103,11 @@ def per_trial(kind, trials_fn):
 
 def report_inputs(wildcards):
     d = wildcards.dataset
-    inputs = {"table3": res(d, "tables", "table3.md"), "coverage": res(d, "tables", "coverage.md"),
-              "figures": res(d, "figures")}
+    inputs = {
+        "table3": res(d, "tables", "table3.md"),
+        "coverage": res(d, "tables", "coverage.md"),
+        "figures": res(d, "figures"),
+    }
     if config.get("report", {}).get("compare_modes", True):
         inputs["modes"] = res(d, "tables", "modes.md")
     if GAP_ENABLED:
