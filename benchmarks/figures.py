@@ -253,11 +253,12 @@ COMMANDS = {
     "gap_tip_20261227": "selfsense gap blind --tip --n 80 --seed 20261227 --jobs 2 --out benchmarks/gap_tip/seed_20261227",
     "gap_tip_20261228": "selfsense gap blind --tip --n 80 --seed 20261228 --jobs 2 --out benchmarks/gap_tip/seed_20261228",
     "gap_tip_20261232": "python benchmarks/tip_cases.py --seed 20261232 --cases 0,1,...,49 --jobs 2 --campaign none "
-                        "--out tip_0_49.md, the same for cases 50-99, 100-149 and 150-199, and cases 200-299 (a run "
-                        "of 200-299 stopped at 224 and resumed from its tip_200_299.partial.jsonl; code 17728e2: the "
-                        "estimator and the diagnostic unchanged since), pooled by python benchmarks/tip_pool.py "
-                        "--records tip_0_224.jsonl.gz (cases 0-224, pooled from the first parts the same way) "
-                        "tip_225_299.jsonl.gz --out benchmarks/gap_tip/seed_20261232",
+                        "--out tip_0_49.md, the same for cases 50-99, 100-149 and 150-199, cases 200-299 (a run "
+                        "of 200-299 stopped at 224 and resumed from its tip_200_299.partial.jsonl) and cases 300-348 "
+                        "of a run of 300-399 stopped there (code 17728e2: the estimator and the diagnostic unchanged "
+                        "since), pooled by python benchmarks/tip_pool.py --records tip_0_224.jsonl.gz (cases 0-224, "
+                        "pooled from the first parts the same way) tip_225_299.jsonl.gz tip_300_348.jsonl.gz --out "
+                        "benchmarks/gap_tip/seed_20261232",
     # the same seed's cases 80-159 (benchmarks/tip_cases.py), pooled with its first 80 into one 160-case tier
     "gap_tip_20261217_160": "python benchmarks/tip_pool.py --records benchmarks/gap_tip/seed_20261217/tip_cases.jsonl.gz "
                             "ext_80_159.jsonl.gz --out benchmarks/gap_tip/seed_20261217_160 (cases 80-159 by python "
