@@ -132,9 +132,11 @@ def _excursion_durations(v: np.ndarray, t: np.ndarray, bounds: np.ndarray, holds
 
 
 def _noise_sd(V: np.ndarray) -> float:
-    """White-noise standard deviation of V per sample (median absolute first difference: slow drives do not count)."""
-    d = np.diff(V)
-    return 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0) if d.size else 0.0
+    """White-noise standard deviation of V per sample: the data contract's own estimate (the median absolute first
+    difference, :func:`selfsense.io.plausibility._noise_sigma`; slow drives do not count)."""
+    from selfsense.io.plausibility import _noise_sigma
+
+    return _noise_sigma(np.asarray(V, float))
 
 
 def _holds(t: np.ndarray, V: np.ndarray, dt: float, v_span: float) -> list[tuple[float, float]]:
